@@ -1,0 +1,1 @@
+"""Physics, drift and (later) learning/control core of dlmpc_ros; never imports rclpy."""

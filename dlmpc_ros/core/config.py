@@ -1,0 +1,120 @@
+"""Settings of the simulated cavity: the spec's physical parameters, grid and solver.
+
+Units are the normalized units of the cavity model (``shared/spec/laser-model.md``):
+time in units of the window's scale (``window`` = T), distance in round-trip fiber
+lengths (``fiber_length`` = Z), energies in the model's normalized units.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+#: The birefringence range the model is specified and trained for.
+BIREFRINGENCE_RANGE = (-0.3, 0.3)
+
+
+@dataclass(frozen=True)
+class CavityConfig:
+    """Every parameter of the cavity model and its solver, with the spec's defaults.
+
+    Attributes
+    ----------
+    dispersion
+        D, averaged group-velocity dispersion (normal dispersion < 0).
+    cross_phase
+        A, cross-phase modulation coefficient; ``cross_phase + four_wave == 1``.
+    four_wave
+        B, four-wave-mixing coefficient.
+    pump
+        g0, pump strength of the saturable gain ``g = 2 g0 / (1 + energy / E0)``.
+    saturation_energy
+        E0, gain saturation energy (> 0).
+    gain_bandwidth
+        tau, parabolic gain bandwidth: gain ``g (1 - tau k^2)``.
+    loss
+        Gamma, distributed fiber loss.
+    fiber_length
+        Z, fiber length of one round trip.
+    window
+        T, width of the periodic time window.
+    points
+        n, number of time (and wavenumber) grid points; at least 16.
+    steps_per_round_trip
+        Symmetric split steps of the fiber pass. The scheme is second order; 32 keeps
+        E and M within 3e-4 of a DOP853 solution at the defaults.
+    steady_tolerance
+        A laser is at steady state when the relative L2 change of its amplitude
+        ``phi`` between consecutive round trips is below this value.
+    """
+
+    dispersion: float = -0.4
+    cross_phase: float = 2.0 / 3.0
+    four_wave: float = 1.0 / 3.0
+    pump: float = 1.73
+    saturation_energy: float = 4.23
+    gain_bandwidth: float = 0.1
+    loss: float = 0.1
+    fiber_length: float = 1.5
+    window: float = 60.0
+    points: int = 256
+    steps_per_round_trip: int = 32
+    steady_tolerance: float = 1e-6
+
+    def __post_init__(self) -> None:
+        problems = config_problems(asdict(self))
+        if problems:
+            raise ValueError('invalid cavity configuration: ' + '; '.join(problems))
+
+    @classmethod
+    def from_mapping(cls, values: dict[str, Any]) -> CavityConfig:
+        """Build from a mapping of field names, rejecting unknown names."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f'unknown cavity parameter(s) {unknown}; known: {sorted(known)}')
+        return cls(**values)
+
+    def to_dict(self) -> dict[str, float | int]:
+        return asdict(self)
+
+
+def config_problems(values: dict[str, Any]) -> list[str]:
+    """Return a list of human-readable problems with cavity parameter values (empty if valid).
+
+    Used both by :class:`CavityConfig` and by the ROS parameter callback, which must give
+    a reason instead of raising.
+    """
+    problems: list[str] = []
+    for name, value in values.items():
+        if name in ('points', 'steps_per_round_trip'):
+            if isinstance(value, bool) or not isinstance(value, int):
+                problems.append(f'{name} must be an integer, got {value!r}')
+        elif isinstance(value, bool) or not isinstance(value, (int, float)) \
+                or not math.isfinite(value):
+            problems.append(f'{name} must be a finite number, got {value!r}')
+    if problems:
+        return problems
+
+    def need(cond: bool, message: str) -> None:
+        if not cond:
+            problems.append(message)
+
+    get = values.get
+    if 'points' in values:
+        need(get('points') >= 16, f"points must be >= 16, got {get('points')}")
+    if 'steps_per_round_trip' in values:
+        need(get('steps_per_round_trip') >= 1,
+             f"steps_per_round_trip must be >= 1, got {get('steps_per_round_trip')}")
+    for name in ('saturation_energy', 'fiber_length', 'window', 'steady_tolerance'):
+        if name in values:
+            need(get(name) > 0, f'{name} must be > 0, got {get(name)}')
+    for name in ('pump', 'gain_bandwidth', 'loss'):
+        if name in values:
+            need(get(name) >= 0, f'{name} must be >= 0, got {get(name)}')
+    if 'cross_phase' in values and 'four_wave' in values:
+        total = get('cross_phase') + get('four_wave')
+        need(abs(total - 1.0) < 1e-9,
+             f'cross_phase + four_wave must equal 1 (the model assumes it), got {total}')
+    return problems
