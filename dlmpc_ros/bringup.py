@@ -1,0 +1,145 @@
+"""bringup: start the dlmpc_ros node graph without ROS launch, watch it, stop it cleanly.
+
+Starts each node as its own process with its parameter file from ``config/``, waits
+until the graph is connected (state and K messages arrive), prints a live status line,
+optionally writes every round trip to a CSV and plots it, and stops after
+``--round-trips`` or Ctrl-C. Exit code: 0 on a clean run, 1 if a node died or did not
+stop cleanly, 2 for bad arguments or a graph that never connected.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+from dlmpc_ros import interfaces as itf
+from dlmpc_ros.core.drift import SCENARIOS, make_scenario, parse_settings
+from dlmpc_ros.graph import NodeGraph, NodeProcess
+from dlmpc_ros.paths import config_file
+
+#: Nodes the bringup knows: name -> (module, parameter file).
+NODES = {
+    'laser_sim': ('dlmpc_ros.nodes.laser_sim_node', 'laser_sim.yaml'),
+    'drift_injector': ('dlmpc_ros.nodes.drift_injector_node', 'drift_injector.yaml'),
+}
+DEFAULT_DOMAIN_ID = 87
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog='bringup', description=__doc__.split('\n\n')[0])
+    p.add_argument('--nodes', default='laser_sim,drift_injector',
+                   help='comma-separated nodes to start (default: %(default)s); leave out '
+                        'laser_sim to run against a hardware driver')
+    p.add_argument('--scenario', default='sinusoidal', choices=SCENARIOS,
+                   help='birefringence drift scenario (default: %(default)s)')
+    p.add_argument('--scenario-param', action='append', default=[], metavar='KEY=VALUE',
+                   help='drift scenario setting, repeatable (e.g. period=2000)')
+    p.add_argument('--laser-param', action='append', default=[], metavar='KEY=VALUE',
+                   help='laser_sim parameter override, repeatable (e.g. pump=1.8)')
+    p.add_argument('--round-trips', type=int, default=0,
+                   help='stop after this many laser round trips (0: run until Ctrl-C)')
+    p.add_argument('--rate', type=float, default=0.0,
+                   help='laser round trips per second (0: as fast as possible)')
+    p.add_argument('--domain-id', type=int, default=DEFAULT_DOMAIN_ID,
+                   help='ROS_DOMAIN_ID of the graph (default: %(default)s, its own)')
+    p.add_argument('--discovery', choices=('localhost', 'subnet'), default='localhost',
+                   help='ROS_AUTOMATIC_DISCOVERY_RANGE (default: %(default)s keeps the graph '
+                        'off the network)')
+    p.add_argument('--csv', type=Path, help='write every round trip (state and K) here')
+    p.add_argument('--plot', type=Path, help='plot O and K of the run to this PNG at the end')
+    p.add_argument('--log-dir', type=Path, help='node logs (default: ~/.ros/log/dlmpc_ros/<time>)')
+    p.add_argument('--connect-timeout', type=float, default=120.0,
+                   help='seconds to wait for the graph to connect (default: %(default)s)')
+    p.add_argument('--stop-timeout', type=float, default=10.0,
+                   help='seconds a node gets to exit after SIGINT (default: %(default)s)')
+    args = p.parse_args(argv)
+    args.nodes = [n.strip() for n in args.nodes.split(',') if n.strip()]
+    unknown = [n for n in args.nodes if n not in NODES]
+    if unknown:
+        p.error(f'unknown node(s) {unknown}; known: {sorted(NODES)}')
+    if not 0 <= args.domain_id <= 232:
+        p.error('--domain-id must be in 0..232')
+    try:
+        args.scenario_settings = parse_settings(args.scenario_param)
+        make_scenario(args.scenario, **args.scenario_settings)  # fail here, not in a node
+        args.laser_overrides = {k: _yaml_number(v) for k, v in
+                                (item.split('=', 1) for item in args.laser_param)}
+    except ValueError as err:
+        p.error(str(err))
+    if args.rate < 0 or args.round_trips < 0:
+        p.error('--rate and --round-trips must be >= 0')
+    return args
+
+
+def _yaml_number(text: str) -> object:
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def build_graph(args: argparse.Namespace, env: dict[str, str], log_dir: Path) -> NodeGraph:
+    nodes = []
+    for name in args.nodes:
+        module, params = NODES[name]
+        overrides: dict[str, object] = {}
+        if name == 'laser_sim':
+            # Hold round trip 1 until the monitor (and the drift injector) listen, and
+            # start from the scenario's K of round trip 1.
+            overrides = {'round_trips_per_second': float(args.rate),
+                         'wait_for_subscribers': 1 + ('drift_injector' in args.nodes),
+                         **args.laser_overrides}
+            if 'drift_injector' in args.nodes:
+                scenario = make_scenario(args.scenario, **args.scenario_settings)
+                overrides.setdefault('initial_birefringence', float(scenario(1)))
+        elif name == 'drift_injector':
+            overrides = {'scenario': args.scenario, **args.scenario_settings}
+        nodes.append(NodeProcess(name, module, config_file(params), overrides))
+    return NodeGraph(nodes, env, log_dir)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    os.environ['ROS_DOMAIN_ID'] = str(args.domain_id)
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = args.discovery.upper()
+    log_dir = args.log_dir or Path.home() / '.ros' / 'log' / 'dlmpc_ros' / time.strftime(
+        '%Y%m%d-%H%M%S')
+    graph = build_graph(args, dict(os.environ), log_dir)
+    print(f'bringup: domain {args.domain_id}, discovery {args.discovery}, nodes '
+          f'{", ".join(args.nodes)}, logs in {log_dir}', flush=True)
+    from dlmpc_ros.ros.monitor import run_monitor  # rclpy only from here on
+    graph.start()
+    try:
+        code = run_monitor(args, graph)
+    finally:
+        exit_codes = graph.stop(args.stop_timeout)
+    unclean = {name: c for name, c in exit_codes.items() if c != 0}
+    if unclean:
+        print(f'bringup: nodes that did not exit cleanly: {unclean}', file=sys.stderr)
+        code = max(code, 1)
+    if args.plot is not None and args.csv is not None and args.csv.exists():
+        from dlmpc_ros.plotting import plot_run_csv
+        plot_run_csv(args.csv, args.plot)
+        print(f'bringup: plot written to {args.plot}')
+    return code
+
+
+def write_header(writer: csv.writer) -> None:
+    writer.writerow([*itf.STATE_FIELDS, 'K'])
+
+
+def status_line(state: list[float], k: float, rate: float) -> str:
+    k_text = f'{k:+.4f}' if math.isfinite(k) else '   n/a'
+    return (f'round trip {int(state[0]):>9d}  O {state[3]:.4f}  E {state[1]:.3f}  '
+            f'M {state[2]:7.2f}  K {k_text}  {rate:6.0f} RT/s')
+
+
+if __name__ == '__main__':
+    sys.exit(main())

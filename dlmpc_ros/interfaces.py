@@ -1,0 +1,89 @@
+"""Topic names, message field layouts and input checks shared by every node (no rclpy).
+
+A hardware driver replacing ``laser_sim`` publishes and subscribes the same topics with
+the same layouts. All messages are ``std_msgs/Float64MultiArray``; the field names of a
+topic are its layout's single dimension label, joined by commas.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+
+TOPIC_STATE = '/laser/state'
+TOPIC_OBJECTIVE = '/laser/objective'
+TOPIC_ANGLES_CMD = '/laser/angles_cmd'
+TOPIC_BIREFRINGENCE = '/laser/birefringence'
+
+#: Fields of /laser/state, one message per round trip (angles in radians).
+STATE_FIELDS = ('round_trip', 'E', 'M', 'O', 'energy', 'peak',
+                'alpha1', 'alpha2', 'alpha3', 'alpha_p')
+OBJECTIVE_FIELDS = ('O',)
+ANGLE_FIELDS = ('alpha1', 'alpha2', 'alpha3', 'alpha_p')
+BIREFRINGENCE_FIELDS = ('K',)
+
+FIELDS = {
+    TOPIC_STATE: STATE_FIELDS,
+    TOPIC_OBJECTIVE: OBJECTIVE_FIELDS,
+    TOPIC_ANGLES_CMD: ANGLE_FIELDS,
+    TOPIC_BIREFRINGENCE: BIREFRINGENCE_FIELDS,
+}
+
+
+def vector_fault(data: Sequence[float], fields: Sequence[str], limit: float) -> str | None:
+    """Describe what is wrong with a received vector, or None if it is usable.
+
+    Parameters
+    ----------
+    data
+        The message's ``data``.
+    fields
+        Expected field names; the length must match.
+    limit
+        Largest allowed absolute value of any element.
+    """
+    if len(data) != len(fields):
+        return f'expected {len(fields)} values ({", ".join(fields)}), got {len(data)}'
+    for name, value in zip(fields, data):
+        if not math.isfinite(value):
+            return f'{name} is {value}'
+        if abs(value) > limit:
+            return f'{name} = {value:g} is outside [-{limit:g}, {limit:g}]'
+    return None
+
+
+class RateLimitedLog:
+    """Log each distinct (topic, fault kind) at most once per ``period`` seconds, with a
+    count of the messages suppressed in between.
+
+    Parameters
+    ----------
+    log
+        Function taking the text, e.g. a ROS logger's ``warning``.
+    period
+        Seconds between two lines of the same key.
+    clock
+        Monotonic time source in seconds.
+    """
+
+    def __init__(self, log: Callable[[str], object], period: float = 2.0,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self._log = log
+        self._period = period
+        self._clock = clock
+        self._last: dict[str, float] = {}
+        self._suppressed: dict[str, int] = {}
+
+    def __call__(self, key: str, text: str) -> bool:
+        """Log ``text`` unless ``key`` was logged within the period; True if it was logged."""
+        now = self._clock()
+        last = self._last.get(key)
+        if last is not None and now - last < self._period:
+            self._suppressed[key] = self._suppressed.get(key, 0) + 1
+            return False
+        count = self._suppressed.pop(key, 0)
+        suffix = f' ({count} similar messages suppressed)' if count else ''
+        self._log(text + suffix)
+        self._last[key] = now
+        return True

@@ -1,0 +1,1 @@
+"""ROS 2 nodes of dlmpc_ros, one per module, each with a ``main``."""

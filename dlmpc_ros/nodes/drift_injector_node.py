@@ -1,0 +1,81 @@
+"""drift_injector: publishes the true birefringence K on /laser/birefringence.
+
+K advances with the laser's own clock: for every ``/laser/state`` message of round trip
+r (every ``publish_every``-th), it publishes ``[K(r + 1)]`` for the next round trip. The
+scenario (``scenario`` parameter) and its settings (the shared names of
+:mod:`dlmpc_ros.core.drift`) are fixed at start. True K is for the simulator and for
+evaluation only: no controller subscribes to it.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from rclpy.experimental import EventsExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from std_msgs.msg import Float64MultiArray
+
+from dlmpc_ros import interfaces as itf
+from dlmpc_ros.core.drift import PARAMETER_NAMES, SCENARIOS, make_scenario
+from dlmpc_ros.ros import params
+from dlmpc_ros.ros.io import QOS, vector_message
+
+DEFAULTS: dict[str, object] = {'scenario': 'sinusoidal', 'publish_every': 1,
+                               **{name: None for name in PARAMETER_NAMES}}
+DESCRIPTIONS = {
+    'scenario': f'drift scenario, one of {SCENARIOS}',
+    'publish_every': 'publish K on every n-th laser round trip',
+    'offset': 'K offset (mean of sinusoidal/chirp/random_walk, level of constant/steps)',
+    'amplitude': 'K amplitude of sinusoidal and chirp',
+    'period': 'period of sinusoidal, length of the chirp sweep [round trips]',
+    'phase': 'phase of sinusoidal and chirp [rad]',
+    'sigma': 'stationary standard deviation of random_walk',
+    'correlation_time': 'correlation time of random_walk [round trips]',
+    'seed': 'seed of random_walk',
+    'times': 'round trips at which steps switches to the next value',
+    'values': 'K values of steps',
+    'path': 'CSV (round_trip, K) for replay',
+}
+READ_ONLY = frozenset(DEFAULTS)
+
+
+class DriftInjectorNode(Node):
+    def __init__(self) -> None:
+        super().__init__('drift_injector')
+        values = params.declare(self, DEFAULTS, DESCRIPTIONS, READ_ONLY)
+        settings = {name: values[name] for name in PARAMETER_NAMES
+                    if self.get_parameter(name).type_ != Parameter.Type.NOT_SET}
+        try:
+            self.scenario = make_scenario(str(values['scenario']), **settings)
+        except (ValueError, TypeError) as err:
+            raise params.StartupError(str(err)) from None
+        self.publish_every = int(values['publish_every'])
+        if self.publish_every < 1:
+            raise params.StartupError(f'publish_every must be >= 1, got {self.publish_every}')
+        self._warn = itf.RateLimitedLog(self.get_logger().warning)
+        self._pub = self.create_publisher(Float64MultiArray, itf.TOPIC_BIREFRINGENCE,
+                                          QOS[itf.TOPIC_BIREFRINGENCE])
+        self.create_subscription(Float64MultiArray, itf.TOPIC_STATE, self._on_state,
+                                 QOS[itf.TOPIC_STATE])
+        self.get_logger().info(f'drift scenario {values["scenario"]} {settings}')
+
+    def _on_state(self, msg: Float64MultiArray) -> None:
+        fault = itf.vector_fault(msg.data, itf.STATE_FIELDS, 1e300)
+        round_trip = msg.data[0] if fault is None else -1.0
+        if fault is None and (round_trip < 0 or round_trip != int(round_trip)):
+            fault = f'round_trip = {round_trip} is not a count'
+        if fault is not None:
+            self._warn(f'state:{fault.split()[0]}', f'dropped a message on {itf.TOPIC_STATE}: {fault}')
+            return
+        if int(round_trip) % self.publish_every == 0:
+            k = float(self.scenario(int(round_trip) + 1))
+            self._pub.publish(vector_message(itf.BIREFRINGENCE_FIELDS, [k]))
+
+
+def main(args: list[str] | None = None) -> None:
+    sys.exit(params.run_node(DriftInjectorNode, args, executor_factory=EventsExecutor))
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,86 @@
+"""Parameter declaration and start-up error handling shared by the nodes."""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Callable, Mapping
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+
+
+class StartupError(ValueError):
+    """Raised by a node's constructor for settings it cannot run with."""
+
+
+def declare(node: Node, defaults: Mapping[str, object], descriptions: Mapping[str, str],
+            read_only: frozenset[str] = frozenset()) -> dict[str, object]:
+    """Declare parameters with descriptions; returns their values (overrides applied).
+
+    A default of ``None`` declares a dynamically typed parameter that stays unset unless
+    the user gives it.
+    """
+    values = {}
+    for name, default in defaults.items():
+        descriptor = ParameterDescriptor(description=descriptions.get(name, ''),
+                                         read_only=name in read_only,
+                                         dynamic_typing=default is None)
+        values[name] = node.declare_parameter(name, default, descriptor).value
+    return values
+
+
+def result(problems: list[str]) -> SetParametersResult:
+    """A SetParametersResult that rejects with all problems joined as the reason."""
+    return SetParametersResult(successful=not problems, reason='; '.join(problems))
+
+
+def stop_on_signals() -> threading.Event:
+    """An event set by SIGINT or SIGTERM instead of raising KeyboardInterrupt.
+
+    An exception raised by a signal in the middle of rclpy's message conversion turns
+    into an unrelated RuntimeError; a flag checked between spins avoids that.
+    """
+    requested = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: requested.set())
+    return requested
+
+
+def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
+             executor_factory: Callable[[], object] | None = None) -> int:
+    """Init rclpy, build the node, spin until SIGINT/SIGTERM, shutdown or ``node.finished``.
+
+    Returns the exit code: 0, or 2 with one log line (no traceback) when the constructor
+    raises :class:`StartupError`.
+    """
+    requested = stop_on_signals()
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    node = None
+    code = 0
+    executor = None
+    try:
+        node = make_node()
+        executor = (executor_factory or rclpy.executors.SingleThreadedExecutor)()
+        executor.add_node(node)
+        while not requested.is_set() and rclpy.ok() and not getattr(node, 'finished', False):
+            executor.spin_once(timeout_sec=0.1)
+    except StartupError as err:
+        rclpy.logging.get_logger('dlmpc_ros').fatal(f'cannot start: {err}')
+        code = 2
+    except ExternalShutdownException:
+        pass
+    finally:
+        if node is not None:
+            stop = getattr(node, 'stop', None)
+            if stop is not None:
+                stop()
+        if executor is not None:
+            executor.shutdown()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code

@@ -1,0 +1,44 @@
+"""ament_python package setup; console scripts go to lib/dlmpc_ros via setup.cfg (colcon)."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = 'dlmpc_ros'
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*', 'bench']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
+        (f'share/{PACKAGE}', ['package.xml']),
+        (f'share/{PACKAGE}/config', glob('config/*.yaml')),
+        (f'share/{PACKAGE}/models', glob('models/*.*')),
+    ],
+    python_requires='>=3.10',
+    install_requires=[
+        'setuptools',
+        'numpy>=1.26',
+        'scipy>=1.11',
+        'numba>=0.60',
+        'rocket-fft>=0.2.5',
+        'matplotlib>=3.7',
+        'pyyaml',
+    ],
+    extras_require={'ml': ['torch>=2.2,<3']},
+    zip_safe=True,
+    maintainer='dlmpc_ros developers',
+    maintainer_email='dlmpc-ros@example.org',
+    description='Self-tuning mode-locked fiber laser simulation and DL-MPC control for ROS 2',
+    license='MIT',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            f'laser_sim = {PACKAGE}.nodes.laser_sim_node:main',
+            f'drift_injector = {PACKAGE}.nodes.drift_injector_node:main',
+            f'bringup = {PACKAGE}.bringup:main',
+            f'dlmpc-sim = {PACKAGE}.cli.sim:main',
+        ],
+    },
+)
