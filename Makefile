@@ -8,7 +8,7 @@ OUT    ?= out
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export ROS_LOG_DIR ?= $(CURDIR)/$(OUT)/ros-log
 
-.PHONY: venv test demo bench lint lock clean
+.PHONY: venv test demo bench lint clean
 
 venv: $(STAMP)
 
@@ -31,9 +31,6 @@ bench: $(STAMP)
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check dlmpc_ros test bench
-
-lock: $(STAMP)
-	$(PY) -m pip freeze --exclude-editable | sed -e 's/+cpu$$//' > requirements.txt
 
 clean:
 	rm -rf $(VENV) $(OUT) build *.egg-info

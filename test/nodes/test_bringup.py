@@ -1,0 +1,66 @@
+"""The whole graph through the bringup, as separate processes."""
+
+import csv
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from dlmpc_ros.core.drift import make_scenario
+
+
+def test_bringup_runs_the_graph_and_records_every_round_trip(ros_env, tmp_path):
+    out = tmp_path / 'run.csv'
+    domain = ros_env['ROS_DOMAIN_ID']
+    proc = subprocess.run(
+        [sys.executable, '-m', 'dlmpc_ros.bringup', '--round-trips', '400', '--scenario',
+         'sinusoidal', '--scenario-param', 'period=200', '--scenario-param', 'amplitude=0.25',
+         '--domain-id', domain, '--csv', str(out), '--plot', str(tmp_path / 'run.png'),
+         '--log-dir', str(tmp_path / 'logs')],
+        env=ros_env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert 'graph connected' in proc.stdout
+    with open(out) as handle:
+        rows = list(csv.DictReader(handle))
+    assert [int(float(r['round_trip'])) for r in rows] == list(range(1, 401))
+    k = np.array([float(r['K']) for r in rows])
+    rt = np.array([float(r['round_trip']) for r in rows])
+    known = np.isfinite(k)
+    assert known[50:].all()
+    # The recorded K is the scenario's K for the next round trip, or a few round trips late.
+    scenario = make_scenario('sinusoidal', period=200.0, amplitude=0.25)
+    lag = np.array([min(abs(scenario(np.maximum(r - d, 0)) - kk) for d in range(-1, 30))
+                    for r, kk in zip(rt[known], k[known])])
+    assert lag.max() < 1e-9
+    o = np.array([float(r['O']) for r in rows])
+    assert np.isfinite(o).all() and o.std() > 0.01  # the drift moves the laser
+    assert (tmp_path / 'run.png').stat().st_size > 10_000
+
+
+def test_bringup_rejects_bad_scenario_before_starting_nodes(ros_env, tmp_path):
+    proc = subprocess.run(
+        [sys.executable, '-m', 'dlmpc_ros.bringup', '--scenario', 'steps', '--scenario-param',
+         'values=0.9', '--log-dir', str(tmp_path / 'logs')],
+        env=ros_env, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert 'outside the model range' in proc.stderr
+    assert not (tmp_path / 'logs').exists()
+
+
+@pytest.mark.parametrize('bad', ['--domain-id=300', '--nodes=laser_sim,teleporter'])
+def test_bringup_rejects_bad_options(ros_env, bad):
+    proc = subprocess.run([sys.executable, '-m', 'dlmpc_ros.bringup', bad], env=ros_env,
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and 'error' in proc.stderr
+
+
+def test_bringup_reports_a_node_that_dies(ros_env, tmp_path):
+    proc = subprocess.run(
+        [sys.executable, '-m', 'dlmpc_ros.bringup', '--round-trips', '100', '--laser-param',
+         'points=8', '--domain-id', ros_env['ROS_DOMAIN_ID'], '--connect-timeout', '60',
+         '--log-dir', str(tmp_path / 'logs')],
+        env=ros_env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0
+    assert 'laser_sim exited with code 2' in proc.stderr
+    assert 'points must be >= 16' in proc.stderr

@@ -1,0 +1,27 @@
+import json
+
+import pytest
+
+from dlmpc_ros.cli.sim import main
+
+
+def test_dlmpc_sim_prints_json_rows_and_summary(capsys):
+    assert main(['--round-trips', '6', '--every', '2', '-K', '0.1']) == 0
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert [row['round_trip'] for row in lines[:-1]] == [2, 4, 6]
+    assert {'round_trip', 'E', 'M', 'O', 'energy', 'peak'} <= set(lines[0])
+    assert lines[-1] == {'converged': False, 'round_trips': 6, 'finite': True}
+
+
+def test_dlmpc_sim_until_steady(capsys):
+    assert main(['--round-trips', '500', '--every', '1000', '--until-steady']) == 0
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert lines[-1]['converged'] is True and lines[-1]['round_trips'] < 500
+    assert lines[-2]['round_trip'] == lines[-1]['round_trips']
+
+
+def test_dlmpc_sim_rejects_bad_parameters(capsys):
+    with pytest.raises(SystemExit) as err:
+        main(['--points', '4'])
+    assert err.value.code == 2
+    assert 'points must be >= 16' in capsys.readouterr().err
