@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 from dlmpc_ros import interfaces as itf
+from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.drift import SCENARIOS, make_scenario, parse_settings
 from dlmpc_ros.graph import NodeGraph, NodeProcess
 from dlmpc_ros.paths import config_file
@@ -67,8 +68,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     try:
         args.scenario_settings = parse_settings(args.scenario_param)
         make_scenario(args.scenario, **args.scenario_settings)  # fail here, not in a node
-        args.laser_overrides = {k: _yaml_number(v) for k, v in
-                                (item.split('=', 1) for item in args.laser_param)}
+        args.laser_overrides = dict(_laser_override(item) for item in args.laser_param)
     except ValueError as err:
         p.error(str(err))
     if args.rate < 0 or args.round_trips < 0:
@@ -76,13 +76,20 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
-def _yaml_number(text: str) -> object:
+def _laser_override(item: str) -> tuple[str, object]:
+    """``KEY=VALUE`` to a typed laser_sim parameter (floats stay floats: ``pump=2``)."""
+    key, sep, text = item.partition('=')
+    if not sep:
+        raise ValueError(f'bad --laser-param {item!r}: use KEY=VALUE')
+    default = CavityConfig().to_dict().get(key)
+    if isinstance(default, float):
+        return key, float(text)
     for kind in (int, float):
         try:
-            return kind(text)
+            return key, kind(text)
         except ValueError:
             pass
-    return text
+    return key, text
 
 
 def build_graph(args: argparse.Namespace, env: dict[str, str], log_dir: Path) -> NodeGraph:

@@ -28,7 +28,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help='alpha1 alpha2 alpha3 alpha_p in radians (default: %(default)s)')
     p.add_argument('--birefringence', '-K', type=float, default=0.1,
                    help='birefringence K (default: %(default)s)')
-    p.add_argument('--round-trips', type=int, default=100, help='round trips (default: %(default)s)')
+    p.add_argument('--round-trips', type=int, default=100,
+                   help='round trips (default: %(default)s)')
     p.add_argument('--every', type=int, default=1, help='print every M-th round trip')
     p.add_argument('--initial', choices=INITIAL_CONDITIONS, default='sech')
     p.add_argument('--seed', type=int, default=0, help='seed of the noise initial condition')
@@ -37,7 +38,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     defaults = CavityConfig()
     for f in fields(CavityConfig):
         p.add_argument('--' + f.name.replace('_', '-'), type=type(getattr(defaults, f.name)),
-                       default=getattr(defaults, f.name), help=f'(default: %(default)s)')
+                       default=getattr(defaults, f.name), help='(default: %(default)s)')
     args = p.parse_args(argv)
     if args.round_trips < 1 or args.every < 1:
         p.error('--round-trips and --every must be >= 1')

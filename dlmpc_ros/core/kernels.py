@@ -10,7 +10,8 @@ One fiber pass is a symmetric (Strang) split step in the circular polarization b
   this basis) are exact exponentials; the saturable gain multiplies mode ``k`` by
   ``exp((1 - tau k^2) G)`` with ``G(h) = integral of g dz``. Because ``g`` depends on
   the energy at the current z, G obeys the scalar ODE
-  ``G' = 2 g0 / (1 + E(G, z) / E0)``, ``E(G, z) = exp(-2 Gamma z) sum_k w_k exp(2 (1 - tau k^2) G)``,
+  ``G' = 2 g0 / (1 + E(G, z) / E0)`` with
+  ``E(G, z) = exp(-2 Gamma z) sum_k w_k exp(2 (1 - tau k^2) G)``,
   which is integrated with classical RK4 (the gain is not frozen over a step, so the
   whole scheme keeps second order).
 
@@ -40,10 +41,13 @@ _TWO_OVER_PI = 0.6366197723675814
 _PIO2_HI = 1.57079632673412561417e+00
 _PIO2_LO = 6.07710050650619224932e-11
 # Minimax coefficients of sin and cos on [-pi/4, pi/4] (fdlibm's kernels).
-_S1, _S2, _S3 = -1.66666666666666324348e-01, 8.33333333332248946124e-03, -1.98412698298579493134e-04
+_S1, _S2 = -1.66666666666666324348e-01, 8.33333333332248946124e-03
+_S3 = -1.98412698298579493134e-04
 _S4, _S5, _S6 = 2.75573137070700676789e-06, -2.50507602534068634195e-08, 1.58969099521155010221e-10
-_C1, _C2, _C3 = 4.16666666666666019037e-02, -1.38888888888741095749e-03, 2.48015872894767294178e-05
-_C4, _C5, _C6 = -2.75573143513906633035e-07, 2.08757232129817482790e-09, -1.13596475577881948265e-11
+_C1, _C2 = 4.16666666666666019037e-02, -1.38888888888741095749e-03
+_C3 = 2.48015872894767294178e-05
+_C4, _C5 = -2.75573143513906633035e-07, 2.08757232129817482790e-09
+_C6 = -1.13596475577881948265e-11
 
 
 @njit(inline='always', fastmath=_FAST)

@@ -66,7 +66,8 @@ class DriftInjectorNode(Node):
         if fault is None and (round_trip < 0 or round_trip != int(round_trip)):
             fault = f'round_trip = {round_trip} is not a count'
         if fault is not None:
-            self._warn(f'state:{fault.split()[0]}', f'dropped a message on {itf.TOPIC_STATE}: {fault}')
+            self._warn(f'state:{fault.split()[0]}',
+                       f'dropped a message on {itf.TOPIC_STATE}: {fault}')
             return
         if int(round_trip) % self.publish_every == 0:
             k = float(self.scenario(int(round_trip) + 1))

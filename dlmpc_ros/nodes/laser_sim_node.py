@@ -87,7 +87,8 @@ class LaserSimNode(Node):
         if len(angles) != 4 or not all(math.isfinite(a) for a in angles):
             problems.append(f'initial_angles must be 4 finite numbers, got {list(angles)}')
         if values['initial'] not in INITIAL_CONDITIONS:
-            problems.append(f"initial must be one of {INITIAL_CONDITIONS}, got {values['initial']!r}")
+            problems.append(f'initial must be one of {INITIAL_CONDITIONS}, '
+                            f"got {values['initial']!r}")
         for name in ('round_trips_per_second', 'max_round_trips', 'angle_limit',
                      'birefringence_limit', 'initial_birefringence', 'wait_for_subscribers'):
             value = values[name]
