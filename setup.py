@@ -32,7 +32,6 @@ setup(
     maintainer_email='dlmpc-ros@example.org',
     description='Self-tuning mode-locked fiber laser simulation and DL-MPC control for ROS 2',
     license='MIT',
-    tests_require=['pytest'],
     entry_points={
         'console_scripts': [
             f'laser_sim = {PACKAGE}.nodes.laser_sim_node:main',

@@ -67,6 +67,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         p.error('--domain-id must be in 0..232')
     try:
         args.scenario_settings = parse_settings(args.scenario_param)
+        if 'path' in args.scenario_settings:  # nodes may run elsewhere than here
+            args.scenario_settings['path'] = str(Path(args.scenario_settings['path']).resolve())
         make_scenario(args.scenario, **args.scenario_settings)  # fail here, not in a node
         args.laser_overrides = dict(_laser_override(item) for item in args.laser_param)
     except ValueError as err:

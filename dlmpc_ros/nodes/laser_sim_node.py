@@ -59,6 +59,7 @@ class LaserSimNode(Node):
                              birefringence=self.values['initial_birefringence'],
                              initial=self.values['initial'], seed=self.values['seed'])
         self.finished = False
+        self.exit_code = 0
         self._lock = threading.Lock()
         self._pending: dict[str, object] = {}
         self._warn = itf.RateLimitedLog(self.get_logger().warning)
@@ -132,6 +133,16 @@ class LaserSimNode(Node):
 
     def _run(self) -> None:
         """Worker thread: round trips until stopped or max_round_trips is reached."""
+        try:
+            self._round_trips()
+        except Exception as err:  # never die silently while the node keeps spinning
+            if not (self._stop.is_set() or not self.context.ok()):
+                self.get_logger().fatal(f'simulation stopped: {type(err).__name__}: {err}')
+                self.exit_code = 1
+        finally:
+            self.finished = True
+
+    def _round_trips(self) -> None:
         wanted = self.values['wait_for_subscribers']
         while self._state_pub.get_subscription_count() < wanted and not self._stop.wait(0.01):
             pass
@@ -148,18 +159,12 @@ class LaserSimNode(Node):
             row = result.laser(0)
             state = [row['round_trip'], row['E'], row['M'], row['O'], row['energy'],
                      row['peak'], *self.cavity.angles[0]]
-            try:
-                self._state_pub.publish(vector_message(itf.STATE_FIELDS, state))
-                self._objective_pub.publish(vector_message(itf.OBJECTIVE_FIELDS, [row['O']]))
-            except Exception:  # context shut down under us: leave quietly
-                if self._stop.is_set() or not self.context.ok():
-                    break
-                raise
+            self._state_pub.publish(vector_message(itf.STATE_FIELDS, state))
+            self._objective_pub.publish(vector_message(itf.OBJECTIVE_FIELDS, [row['O']]))
             rate = self.values['round_trips_per_second']
             if rate > 0:
                 next_time = max(next_time + 1.0 / rate, time.monotonic() - 1.0)
                 self._stop.wait(max(0.0, next_time - time.monotonic()))
-        self.finished = True
 
     def stop(self) -> None:
         """Stop the worker thread and wait for it (call before destroying the node)."""

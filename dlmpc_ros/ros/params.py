@@ -54,8 +54,8 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
              executor_factory: Callable[[], object] | None = None) -> int:
     """Init rclpy, build the node, spin until SIGINT/SIGTERM, shutdown or ``node.finished``.
 
-    Returns the exit code: 0, or 2 with one log line (no traceback) when the constructor
-    raises :class:`StartupError`.
+    Returns the exit code: the node's ``exit_code`` attribute (0 if it has none), or 2 with
+    one log line (no traceback) when the constructor raises :class:`StartupError`.
     """
     requested = stop_on_signals()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
@@ -68,6 +68,7 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
         executor.add_node(node)
         while not requested.is_set() and rclpy.ok() and not getattr(node, 'finished', False):
             executor.spin_once(timeout_sec=0.1)
+        code = getattr(node, 'exit_code', 0)
     except StartupError as err:
         rclpy.logging.get_logger('dlmpc_ros').fatal(f'cannot start: {err}')
         code = 2

@@ -14,8 +14,9 @@ def test_bringup_runs_the_graph_and_records_every_round_trip(ros_env, tmp_path):
     out = tmp_path / 'run.csv'
     domain = ros_env['ROS_DOMAIN_ID']
     proc = subprocess.run(
-        [sys.executable, '-m', 'dlmpc_ros.bringup', '--round-trips', '400', '--rate', '1000', '--scenario',
-         'sinusoidal', '--scenario-param', 'period=200', '--scenario-param', 'amplitude=0.25',
+        [sys.executable, '-m', 'dlmpc_ros.bringup', '--round-trips', '400', '--rate', '1000',
+         '--scenario', 'sinusoidal', '--scenario-param', 'period=200',
+         '--scenario-param', 'amplitude=0.25',
          '--domain-id', domain, '--csv', str(out), '--plot', str(tmp_path / 'run.png'),
          '--log-dir', str(tmp_path / 'logs')],
         env=ros_env, capture_output=True, text=True, timeout=300)
