@@ -15,6 +15,9 @@ TOPIC_STATE = '/laser/state'
 TOPIC_OBJECTIVE = '/laser/objective'
 TOPIC_ANGLES_CMD = '/laser/angles_cmd'
 TOPIC_BIREFRINGENCE = '/laser/birefringence'
+#: Simulator only: the K each round trip was simulated with, for evaluation and recording.
+#: A hardware driver does not publish it, and no controller may subscribe to it.
+TOPIC_SIM_TRUTH = '/laser/sim_truth'
 
 #: Fields of /laser/state, one message per round trip (angles in radians).
 STATE_FIELDS = ('round_trip', 'E', 'M', 'O', 'energy', 'peak',
@@ -22,12 +25,14 @@ STATE_FIELDS = ('round_trip', 'E', 'M', 'O', 'energy', 'peak',
 OBJECTIVE_FIELDS = ('O',)
 ANGLE_FIELDS = ('alpha1', 'alpha2', 'alpha3', 'alpha_p')
 BIREFRINGENCE_FIELDS = ('K',)
+SIM_TRUTH_FIELDS = ('round_trip', 'K')
 
 FIELDS = {
     TOPIC_STATE: STATE_FIELDS,
     TOPIC_OBJECTIVE: OBJECTIVE_FIELDS,
     TOPIC_ANGLES_CMD: ANGLE_FIELDS,
     TOPIC_BIREFRINGENCE: BIREFRINGENCE_FIELDS,
+    TOPIC_SIM_TRUTH: SIM_TRUTH_FIELDS,
 }
 
 

@@ -1,6 +1,7 @@
 """laser_sim: the simulated NPR mode-locked fiber laser as a ROS 2 node.
 
-Publishes every round trip ``/laser/state`` and ``/laser/objective``; subscribes
+Publishes every round trip ``/laser/state``, ``/laser/objective`` and, for evaluation
+only, ``/laser/sim_truth`` ``[round_trip, K]`` (the K that round trip ran with); subscribes
 ``/laser/angles_cmd`` ``[alpha1, alpha2, alpha3, alpha_p]`` (rad) and
 ``/laser/birefringence`` ``[K]``. Round trips run in a worker thread, free-running or
 paced by ``round_trips_per_second``; commands take effect from the next round trip.
@@ -67,6 +68,8 @@ class LaserSimNode(Node):
                                                 QOS[itf.TOPIC_STATE])
         self._objective_pub = self.create_publisher(Float64MultiArray, itf.TOPIC_OBJECTIVE,
                                                     QOS[itf.TOPIC_OBJECTIVE])
+        self._truth_pub = self.create_publisher(Float64MultiArray, itf.TOPIC_SIM_TRUTH,
+                                                QOS[itf.TOPIC_SIM_TRUTH])
         for topic, handler in ((itf.TOPIC_ANGLES_CMD, self._on_angles),
                                (itf.TOPIC_BIREFRINGENCE, self._on_birefringence)):
             self.create_subscription(Float64MultiArray, topic, handler, QOS[topic])
@@ -150,6 +153,7 @@ class LaserSimNode(Node):
         limit = self.values['max_round_trips']
         while not self._stop.is_set() and (limit == 0 or self.cavity.round_trip < limit):
             self._apply_pending()
+            k = float(self.cavity.birefringence[0])
             result = self.cavity.step()
             if not result.finite[0]:
                 self.get_logger().error(f'field blew up at round trip {self.cavity.round_trip};'
@@ -159,6 +163,7 @@ class LaserSimNode(Node):
             row = result.laser(0)
             state = [row['round_trip'], row['E'], row['M'], row['O'], row['energy'],
                      row['peak'], *self.cavity.angles[0]]
+            self._truth_pub.publish(vector_message(itf.SIM_TRUTH_FIELDS, [row['round_trip'], k]))
             self._state_pub.publish(vector_message(itf.STATE_FIELDS, state))
             self._objective_pub.publish(vector_message(itf.OBJECTIVE_FIELDS, [row['O']]))
             rate = self.values['round_trips_per_second']

@@ -10,6 +10,7 @@ topic                          reliability  history      why
 /laser/objective               reliable    keep last 1000  same, for ``ros2 topic echo``
 /laser/angles_cmd              reliable    keep last 10    commands are never silently lost
 /laser/birefringence           reliable    keep last 10    same
+/laser/sim_truth               reliable    keep last 1000  like /laser/state (simulator only)
 ============================  ==========  ===========  ======================================
 """
 
@@ -33,6 +34,7 @@ QOS = {
     interfaces.TOPIC_OBJECTIVE: STREAM_QOS,
     interfaces.TOPIC_ANGLES_CMD: COMMAND_QOS,
     interfaces.TOPIC_BIREFRINGENCE: COMMAND_QOS,
+    interfaces.TOPIC_SIM_TRUTH: STREAM_QOS,
 }
 
 

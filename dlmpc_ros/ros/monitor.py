@@ -1,4 +1,9 @@
-"""The bringup's own node: waits for the graph, shows status, records the run to CSV."""
+"""The bringup's own node: waits for the graph, shows status, records the run to CSV.
+
+Each recorded row is a ``/laser/state`` message joined by round trip with the K that the
+simulator used for it (``/laser/sim_truth``); without a simulator (a hardware driver),
+K is NaN.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +12,8 @@ import csv
 import math
 import sys
 import time
+from collections import deque
+from collections.abc import Callable
 
 import rclpy
 from rclpy.experimental import EventsExecutor
@@ -19,32 +26,58 @@ from dlmpc_ros.graph import NodeGraph
 from dlmpc_ros.ros.io import QOS
 from dlmpc_ros.ros.params import stop_on_signals
 
+#: States wait at most this many rows for their K before they are written without it.
+MAX_PENDING = 2000
+
 
 class MonitorNode(Node):
-    """Keeps the latest state and K; hands every state row to ``on_row``."""
+    """Joins state and true K by round trip and hands each row to ``on_row`` in order."""
 
-    def __init__(self, on_row) -> None:
+    def __init__(self, on_row: Callable[[list[float], float], None]) -> None:
         super().__init__('bringup_monitor')
         self.state: list[float] | None = None
         self.k = math.nan
         self.k_seen = False
         self.count = 0
         self._on_row = on_row
-        self.create_subscription(Float64MultiArray, itf.TOPIC_STATE, self._on_state,
-                                 QOS[itf.TOPIC_STATE])
-        self.create_subscription(Float64MultiArray, itf.TOPIC_BIREFRINGENCE, self._on_k,
-                                 QOS[itf.TOPIC_BIREFRINGENCE])
+        self._pending: deque[list[float]] = deque()
+        self._truth: dict[int, float] = {}
+        self._latest_truth = -1
+        for topic, handler in ((itf.TOPIC_STATE, self._on_state),
+                               (itf.TOPIC_SIM_TRUTH, self._on_truth),
+                               (itf.TOPIC_BIREFRINGENCE, self._on_k)):
+            self.create_subscription(Float64MultiArray, topic, handler, QOS[topic])
 
     def _on_state(self, msg: Float64MultiArray) -> None:
         if itf.vector_fault(msg.data, itf.STATE_FIELDS, 1e300) is None:
-            self.state = list(msg.data)
+            self._pending.append(list(msg.data))
             self.count += 1
-            self._on_row(self.state, self.k)
+            self.flush()
+
+    def _on_truth(self, msg: Float64MultiArray) -> None:
+        if itf.vector_fault(msg.data, itf.SIM_TRUTH_FIELDS, 1e300) is None:
+            round_trip = int(msg.data[0])
+            self._truth[round_trip] = msg.data[1]
+            self._latest_truth = max(self._latest_truth, round_trip)
+            self.flush()
 
     def _on_k(self, msg: Float64MultiArray) -> None:
-        if itf.vector_fault(msg.data, itf.BIREFRINGENCE_FIELDS, 1e300) is None:
-            self.k = msg.data[0]
-            self.k_seen = True
+        self.k_seen = True
+
+    def flush(self, everything: bool = False) -> None:
+        """Hand on the rows whose K is known, or will never come."""
+        while self._pending:
+            round_trip = int(self._pending[0][0])
+            known = round_trip in self._truth
+            if not (known or everything or round_trip < self._latest_truth
+                    or len(self._pending) > MAX_PENDING):
+                break
+            self.state = self._pending.popleft()
+            self.k = self._truth.pop(round_trip, math.nan)
+            self._on_row(self.state, self.k)
+        if len(self._truth) > MAX_PENDING:  # truths of states that never came
+            oldest = int(self._pending[0][0]) if self._pending else self._latest_truth
+            self._truth = {r: k for r, k in self._truth.items() if r >= oldest}
 
 
 def run_monitor(args: argparse.Namespace, graph: NodeGraph) -> int:
@@ -97,6 +130,7 @@ def run_monitor(args: argparse.Namespace, graph: NodeGraph) -> int:
                 line = status_line(node.state, node.k, rate)
                 print('\r' + line if tty else line, end='' if tty else '\n', flush=True)
     finally:
+        node.flush(everything=True)
         if tty:
             print()
         if node.state is not None:

@@ -30,6 +30,7 @@ def _start(ros_env, tmp_path, *params):
 def test_publishes_every_round_trip_and_applies_commands(ros_env, tmp_path, probe):
     states = probe.listen(itf.TOPIC_STATE)
     objectives = probe.listen(itf.TOPIC_OBJECTIVE)
+    truths = probe.listen(itf.TOPIC_SIM_TRUTH)
     node = _start(ros_env, tmp_path, 'wait_for_subscribers:=1', 'max_round_trips:=100000')
     try:
         probe.spin_until(lambda: len(states) >= 300, 120, '300 state messages')
@@ -54,11 +55,16 @@ def test_publishes_every_round_trip_and_applies_commands(ros_env, tmp_path, prob
         assert all(list(m.data)[6:] == pytest.approx([-0.39, -0.25, 0.52, -0.14])
                    for m in states[count:])
 
-        # A good command takes effect within a few round trips.
+        # Good commands take effect within a few round trips.
         new = [0.3, -1.1, 0.7, 0.25]
         probe.publish(itf.TOPIC_ANGLES_CMD, new, itf.ANGLE_FIELDS)
         probe.spin_until(lambda: list(states[-1].data)[6:] == pytest.approx(new), 30,
                          'the new angles in the state')
+        probe.publish(itf.TOPIC_BIREFRINGENCE, [-0.25], itf.BIREFRINGENCE_FIELDS)
+        probe.spin_until(lambda: truths and truths[-1].data[1] == -0.25, 30, 'the new K')
+        rts = [int(m.data[0]) for m in truths]
+        assert rts == list(range(rts[0], rts[0] + len(rts)))
+        assert {m.data[1] for m in truths} == {0.1, -0.25}
         assert all(math.isfinite(x) for m in states for x in m.data)
     finally:
         code = node.stop()
