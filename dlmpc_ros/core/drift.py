@@ -46,6 +46,12 @@ def _check_range(name: str, low: float, high: float) -> None:
                          f'range [{K_MIN}, {K_MAX}]')
 
 
+def _check_oscillation(name: str, offset: float, amplitude: float, period: float) -> None:
+    if not period > 0:
+        raise ValueError(f'{name}: period must be > 0 round trips, got {period}')
+    _check_range(name, offset - abs(amplitude), offset + abs(amplitude))
+
+
 def _as_round_trips(round_trip: int | np.ndarray) -> np.ndarray:
     r = np.asarray(round_trip, dtype=np.float64)
     if not np.isfinite(r).all() or (r < 0).any():
@@ -79,10 +85,7 @@ class Sinusoidal:
     phase: float = 0.0
 
     def __post_init__(self) -> None:
-        if not self.period > 0:
-            raise ValueError(f'sinusoidal: period must be > 0 round trips, got {self.period}')
-        _check_range('sinusoidal', self.offset - abs(self.amplitude),
-                     self.offset + abs(self.amplitude))
+        _check_oscillation('sinusoidal', self.offset, self.amplitude, self.period)
 
     def __call__(self, round_trip):
         r = _as_round_trips(round_trip)
@@ -100,10 +103,7 @@ class Chirp:
     phase: float = 0.0
 
     def __post_init__(self) -> None:
-        if not self.period > 0:
-            raise ValueError(f'chirp: period must be > 0 round trips, got {self.period}')
-        _check_range('chirp', self.offset - abs(self.amplitude),
-                     self.offset + abs(self.amplitude))
+        _check_oscillation('chirp', self.offset, self.amplitude, self.period)
 
     def __call__(self, round_trip):
         x = 7.0 * _as_round_trips(round_trip) / self.period
