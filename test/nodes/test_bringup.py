@@ -68,3 +68,30 @@ def test_bringup_reports_a_node_that_dies(ros_env, tmp_path):
     assert proc.returncode != 0
     assert 'laser_sim exited with code 2' in proc.stderr
     assert 'points must be >= 16' in proc.stderr
+
+
+def test_ctrl_c_stops_the_graph_cleanly(ros_env, tmp_path):
+    import signal
+    import time
+
+    proc = subprocess.Popen(
+        [sys.executable, '-u', '-m', 'dlmpc_ros.bringup', '--rate', '500', '--domain-id',
+         ros_env['ROS_DOMAIN_ID'], '--log-dir', str(tmp_path / 'logs')],
+        env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        lines = []
+        while time.monotonic() < deadline:
+            lines.append(proc.stdout.readline())
+            if 'graph connected' in lines[-1] or proc.poll() is not None:
+                break
+        assert 'graph connected' in lines[-1], ''.join(lines)
+        proc.send_signal(signal.SIGINT)
+        out = proc.communicate(timeout=60)[0]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, ''.join(lines) + out
+    assert 'interrupted, stopping the graph' in out
+    for name in ('laser_sim', 'drift_injector'):
+        assert 'Traceback' not in (tmp_path / 'logs' / f'{name}.log').read_text()
