@@ -1,0 +1,1 @@
+"""Learning core (torch, no rclpy): data generation, VAE, K-to-angles map, MP-RNN."""

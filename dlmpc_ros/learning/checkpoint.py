@@ -1,0 +1,74 @@
+"""Model files: state_dict + config + metrics + data fingerprint + schema version.
+
+Files are written with ``torch.save`` of plain containers and read back with
+``torch.load(weights_only=True)``, which refuses anything but tensors and primitive
+containers: loading a model never executes code from the file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+SCHEMA_VERSION = 1
+KINDS = ('vae', 'kmap', 'mprnn')
+
+
+class ModelFileError(RuntimeError):
+    """A model file is missing, unreadable, of the wrong kind or of another schema."""
+
+
+def regenerate_hint(kind: str) -> str:
+    return f'regenerate it with `dlmpc-train {kind}` (see models/MODEL_CARD.md)'
+
+
+def save_checkpoint(path: str | Path, kind: str, state_dict: dict[str, torch.Tensor],
+                    config: dict[str, Any], metrics: dict[str, Any],
+                    fingerprint: str) -> Path:
+    """Write a model file; ``kind`` is one of :data:`KINDS`."""
+    if kind not in KINDS:
+        raise ValueError(f'unknown model kind {kind!r}; one of {KINDS}')
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {'schema_version': SCHEMA_VERSION, 'kind': kind,
+               'state_dict': {k: v.detach().cpu().clone() for k, v in state_dict.items()},
+               'config': config, 'metrics': metrics, 'data_fingerprint': fingerprint}
+    tmp = path.with_suffix(path.suffix + '.tmp')
+    torch.save(payload, tmp)
+    tmp.replace(path)
+    return path
+
+
+def load_checkpoint(path: str | Path, kind: str) -> dict[str, Any]:
+    """Read a model file without executing code; raises :class:`ModelFileError` with a
+    message that says how to regenerate the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise ModelFileError(f'model file {path} is missing; {regenerate_hint(kind)}')
+    try:
+        payload = torch.load(path, map_location='cpu', weights_only=True)
+    except Exception as err:  # truncated, not a torch file, or disallowed content
+        raise ModelFileError(f'model file {path} is corrupt or not a dlmpc_ros model '
+                             f'({type(err).__name__}); {regenerate_hint(kind)}') from None
+    if not isinstance(payload, dict) or payload.get('kind') != kind:
+        found = payload.get('kind') if isinstance(payload, dict) else type(payload).__name__
+        raise ModelFileError(f'model file {path} holds {found!r}, not a {kind} model; '
+                             f'{regenerate_hint(kind)}')
+    if payload.get('schema_version') != SCHEMA_VERSION:
+        raise ModelFileError(f'model file {path} has schema {payload.get("schema_version")}, '
+                             f'this version reads {SCHEMA_VERSION}; {regenerate_hint(kind)}')
+    return payload
+
+
+def fingerprint_arrays(arrays: dict[str, np.ndarray]) -> str:
+    """Short SHA-256 over named arrays (names, dtypes, shapes and bytes)."""
+    digest = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        digest.update(f'{name}:{a.dtype}:{a.shape};'.encode())
+        digest.update(a.tobytes())
+    return digest.hexdigest()[:16]
