@@ -1,0 +1,62 @@
+"""dlmpc-train: train, measure and ship the models (estimator, map, predictor).
+
+``dlmpc-train all`` runs ``vae``, ``kmap`` and ``mprnn`` in order on the datasets of
+``dlmpc-data`` and writes ``models/{vae,kmap,mprnn}.pt``, ``models/metrics.json``,
+``models/figures/`` and ``models/MODEL_CARD.md``. ``--quick`` trains tiny models for tests.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from dlmpc_ros.learning.checkpoint import ModelFileError
+from dlmpc_ros.learning.pipeline import (Paths, train_kmap_stage, train_vae_stage,
+                                         write_metrics)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog='dlmpc-train', description=__doc__.split('\n\n')[0])
+    p.add_argument('stage', choices=('all', 'vae', 'kmap', 'mprnn'))
+    p.add_argument('--data-dir', type=Path, default=Path('data'))
+    p.add_argument('--models-dir', type=Path, default=Path('models'))
+    p.add_argument('--seed', type=int, default=0)
+    p.add_argument('--quick', action='store_true', help='tiny training runs for tests')
+    p.add_argument('--no-progress', action='store_true')
+    args = p.parse_args(argv)
+    paths = Paths(args.data_dir, args.models_dir)
+    show = not args.no_progress
+    started = time.monotonic()
+    try:
+        if args.stage in ('all', 'vae'):
+            metrics = train_vae_stage(paths, args.seed, epochs=2 if args.quick else 25,
+                                      show_progress=show)
+            write_metrics(paths, 'vae', metrics)
+            print(f"vae: |r| = {metrics['abs_pearson_r_heldout']:.3f} (window "
+                  f"{metrics['chosen_window']})", flush=True)
+        if args.stage in ('all', 'kmap'):
+            metrics = train_kmap_stage(paths, args.seed, steps=200 if args.quick else 3000,
+                                       show_progress=show)
+            write_metrics(paths, 'kmap', metrics)
+            print(f"kmap: O/O* = {metrics['oracle_ratio_from_oracle_state']:.3f}", flush=True)
+        if args.stage in ('all', 'mprnn'):
+            from dlmpc_ros.learning.pipeline_mprnn import train_mprnn_stage
+            metrics = train_mprnn_stage(paths, args.seed, quick=args.quick, show_progress=show)
+            write_metrics(paths, 'mprnn', metrics)
+            print(f"mprnn: horizon-{len(metrics['rmse_O_model'])} O error / persistence = "
+                  f"{metrics['rmse_O_model'][-1] / metrics['rmse_O_persistence'][-1]:.3f}",
+                  flush=True)
+    except (FileNotFoundError, ModelFileError, ValueError) as err:
+        print(f'dlmpc-train: {err}', file=sys.stderr)
+        return 2
+    from dlmpc_ros.learning.card import write_model_card
+    write_model_card(paths)
+    print(json.dumps({'wall_seconds': round(time.monotonic() - started, 1)}))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

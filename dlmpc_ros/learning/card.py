@@ -1,0 +1,70 @@
+"""models/MODEL_CARD.md: how the shipped models were made and what they measured."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from dlmpc_ros.learning.pipeline import Paths
+
+TARGETS = {
+    'vae': ('abs_pearson_r_heldout', '>= 0.95', '|Pearson r| of surrogate vs true K, held-out'),
+    'kmap': ('oracle_ratio_from_oracle_state', '>= 0.90',
+             'steady O at the map\'s angles / O*(K), mean over 61 K'),
+}
+
+
+def _data_meta(paths: Paths) -> dict:
+    out = {}
+    for name, directory in (('sweep', paths.sweep), ('trajectories', paths.trajectories)):
+        meta = directory / 'metadata.json'
+        if meta.exists():
+            out[name] = json.loads(meta.read_text())
+    oracle_meta = paths.oracle.with_suffix('.json')
+    if oracle_meta.exists():
+        out['oracle'] = json.loads(oracle_meta.read_text())
+    return out
+
+
+def write_model_card(paths: Paths) -> Path:
+    metrics_path = paths.models_dir / 'metrics.json'
+    metrics = json.loads(metrics_path.read_text()) if metrics_path.exists() else {}
+    data = _data_meta(paths)
+    lines = ['# dlmpc_ros model card', '',
+             'Made by `dlmpc-data all` then `dlmpc-train all` (seed 0) on a 2-core CPU '
+             'machine; `make models` runs both. Files load with `torch.load(weights_only=True)` '
+             '(no code is executed); each holds its state_dict, config, metrics, data '
+             'fingerprint and schema version.', '']
+    lines += ['## Data', '']
+    if 'sweep' in data:
+        s = data['sweep']
+        lines.append(f"- steady-state sweep: {s.get('samples')} samples, converged fraction "
+                     f"{s.get('converged_fraction', float('nan')):.3f}, "
+                     f"{s.get('round_trips_total')} round trips, fingerprint "
+                     f"{s.get('fingerprint')}; settings {json.dumps(s['settings']['sweep'])}")
+    if 'oracle' in data:
+        o = data['oracle']
+        lines.append(f"- oracle envelope: {o['k_points']} K values, mean O* "
+                     f"{o['mean_O_star']:.4f}, mean gain over the sweep's best "
+                     f"{100 * o['mean_gain_over_sweep_best']:.1f} %, largest gain of random "
+                     f"probes at 2x the final step "
+                     f"{100 * o['max_gain_of_random_probes_at_2x_min_step']:.2f} %")
+    if 'trajectories' in data:
+        t = data['trajectories']
+        lines.append(f"- trajectories: settings {json.dumps(t['settings']['trajectories'])}")
+    lines += ['', '## Models and measurements', '', '| model | figure | measured | target |',
+              '|---|---|---|---|']
+    for stage, (key, target, what) in TARGETS.items():
+        if stage in metrics:
+            lines.append(f'| {stage} | {what} | {metrics[stage][key]:.3f} | {target} |')
+    if 'mprnn' in metrics:
+        m = metrics['mprnn']
+        ratio = m['rmse_O_model'][-1] / m['rmse_O_persistence'][-1]
+        lines.append(f'| mprnn | O prediction RMSE at horizon {len(m["rmse_O_model"])} / '
+                     f'persistence, held-out | {ratio:.3f} | <= 0.5 |')
+    lines += ['', '## Full metrics', '', '```json', json.dumps(
+        {k: {kk: vv for kk, vv in v.items() if not kk.startswith('per_k')}
+         for k, v in metrics.items()}, indent=1, default=float)[:20000], '```', '']
+    path = paths.models_dir / 'MODEL_CARD.md'
+    path.write_text('\n'.join(lines))
+    return path

@@ -1,0 +1,227 @@
+"""Steady-state sweep: K over [-0.3, 0.3] crossed with space-filling angle sets.
+
+Each *chain* is one angle set swept through the K grid by continuation (ascending for
+even chains, descending for odd ones, so both branches of hysteresis are sampled): the
+field is warm-started from the previous K's final state, as a laser whose birefringence
+drifts slowly would be. Each (angle set, K) point runs until the spec's steady-state rule
+holds or a round-trip cap. Chains run as lanes of one batched cavity; a finished lane
+takes the next chain. Angle sets come from a scrambled Sobol sequence over
+[-pi/2, pi/2)^4 (every element is pi-periodic), then a refinement phase perturbs the
+angle sets that reached the highest objective.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy.stats import qmc
+
+from dlmpc_ros.core.cavity import Cavity
+from dlmpc_ros.core.config import BIREFRINGENCE_RANGE, CavityConfig
+
+FIELDS = ('chain', 'K', 'alpha', 'E', 'M', 'O', 'energy', 'peak', 'pulses', 'converged',
+          'finite', 'round_trips')
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """Settings of the steady-state sweep.
+
+    Attributes
+    ----------
+    sobol_sets
+        Space-filling angle sets (rounded up to a power of two by Sobol balance rules).
+    refine_sets
+        Angle sets drawn around the best ones found by the Sobol phase.
+    refine_sigma
+        Standard deviation of the refinement perturbation [rad].
+    k_points
+        K grid points over [-0.3, 0.3] per chain.
+    first_cap, cap
+        Round-trip caps of a chain's first point (cold start from sech) and of the
+        following, warm-started points.
+    chunk
+        Round trips between two steady-state checks.
+    batch
+        Lasers simulated at once.
+    chains_per_shard
+        Chains stored per shard file.
+    seed
+        Seed of the Sobol scrambling and the refinement draws.
+    """
+
+    sobol_sets: int = 1280
+    refine_sets: int = 384
+    refine_sigma: float = 0.08
+    k_points: int = 61
+    first_cap: int = 300
+    cap: int = 100
+    chunk: int = 5
+    batch: int = 256
+    chains_per_shard: int = 128
+    seed: int = 0
+
+    def k_grid(self) -> np.ndarray:
+        return np.linspace(*BIREFRINGENCE_RANGE, self.k_points)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def sobol_angles(count: int, seed: int) -> np.ndarray:
+    """(count, 4) scrambled Sobol angle sets in [-pi/2, pi/2)."""
+    sampler = qmc.Sobol(d=4, scramble=True, seed=seed)
+    with warnings.catch_warnings():  # any count is fine here: the first points of the
+        warnings.simplefilter('ignore', UserWarning)  # sequence still fill the cube evenly
+        points = sampler.random(count)
+    return (points - 0.5) * math.pi
+
+
+def refine_angles(best: np.ndarray, count: int, sigma: float, seed: int) -> np.ndarray:
+    """(count, 4) perturbations of the rows of ``best``, wrapped into [-pi/2, pi/2)."""
+    rng = np.random.default_rng(seed + 1)
+    picks = best[rng.integers(0, best.shape[0], count)]
+    return wrap_angles(picks + sigma * rng.standard_normal(picks.shape))
+
+
+def wrap_angles(alpha: np.ndarray) -> np.ndarray:
+    """Angles wrapped into [-pi/2, pi/2) (the elements are pi-periodic)."""
+    return (alpha + math.pi / 2) % math.pi - math.pi / 2
+
+
+def run_chains(angle_sets: np.ndarray, chain_ids: np.ndarray, cfg: SweepConfig,
+               cavity_cfg: CavityConfig, on_chain: Callable[[int, dict], None],
+               progress: Callable[[int], None] | None = None) -> None:
+    """Run chains through the K grid; calls ``on_chain(chain_id, samples)`` as each ends.
+
+    ``samples`` maps :data:`FIELDS` to arrays with one row per K point.
+    """
+    k_grid = cfg.k_grid()
+    queue = list(range(len(chain_ids)))
+    lanes = min(cfg.batch, len(queue))
+    if lanes == 0:
+        return
+    cavity = Cavity(cavity_cfg, batch=lanes)
+    lane_job = np.full(lanes, -1)       # index into chain_ids / angle_sets
+    lane_point = np.zeros(lanes, int)   # position along the K grid
+    lane_trips = np.zeros(lanes, int)   # round trips at this point
+    records: dict[int, dict[str, list]] = {}
+
+    def k_order(job: int) -> np.ndarray:
+        return k_grid if chain_ids[job] % 2 == 0 else k_grid[::-1]
+
+    def start(lane: int) -> None:
+        job = queue.pop(0)
+        lane_job[lane], lane_point[lane], lane_trips[lane] = job, 0, 0
+        cavity.set_angles(angle_sets[job], index=[lane])
+        cavity.set_birefringence(k_order(job)[0], index=[lane])
+        cavity.reset([lane])
+        records[job] = {name: [] for name in FIELDS}
+
+    for lane in range(lanes):
+        start(lane)
+    while (lane_job >= 0).any():
+        last = cavity.run(cfg.chunk).last()
+        lane_trips += cfg.chunk
+        for lane in np.flatnonzero(lane_job >= 0):
+            job = lane_job[lane]
+            cap = cfg.first_cap if lane_point[lane] == 0 else cfg.cap
+            blown = not last.finite[lane]
+            if not (last.converged[lane] or blown or lane_trips[lane] >= cap):
+                continue
+            rec = records[job]
+            rec['chain'].append(chain_ids[job])
+            rec['K'].append(k_order(job)[lane_point[lane]])
+            rec['alpha'].append(angle_sets[job])
+            for name in ('E', 'M', 'O', 'energy', 'peak', 'pulses', 'converged', 'finite'):
+                rec[name].append(getattr(last, name)[lane])
+            rec['round_trips'].append(lane_trips[lane])
+            if blown:
+                cavity.reset([lane])
+            lane_point[lane] += 1
+            lane_trips[lane] = 0
+            if progress is not None:
+                progress(1)
+            if lane_point[lane] < len(k_grid):
+                cavity.set_birefringence(k_order(job)[lane_point[lane]], index=[lane])
+                continue
+            on_chain(int(chain_ids[job]), {k: np.asarray(v) for k, v in rec.items()})
+            del records[job]
+            if queue:
+                start(lane)
+            else:
+                lane_job[lane] = -1
+
+
+def best_angle_sets(data: dict[str, np.ndarray], count: int) -> np.ndarray:
+    """Angle sets of the ``count`` chains with the highest mean steady O over K."""
+    chains = np.unique(data['chain'])
+    score = np.array([np.nanmean(np.where(data['converged'][data['chain'] == c],
+                                          data['O'][data['chain'] == c], 0.0))
+                      for c in chains])
+    top = chains[np.argsort(score)[::-1][:count]]
+    return np.stack([data['alpha'][data['chain'] == c][0] for c in top])
+
+
+def generate_sweep(directory, cfg: SweepConfig, cavity_cfg: CavityConfig,
+                   show_progress: bool = True) -> dict:
+    """Run (or resume) the sweep into ``directory``; returns the dataset's metadata."""
+    import sys
+    import time
+    from pathlib import Path
+
+    from tqdm import tqdm
+
+    from dlmpc_ros.learning import shards
+
+    directory = Path(directory)
+    shards.check_metadata(directory, {'sweep': cfg.to_dict(), 'cavity': cavity_cfg.to_dict()})
+    started = time.monotonic()
+    sobol = sobol_angles(cfg.sobol_sets, cfg.seed)
+    n_sobol = sobol.shape[0]
+    per = cfg.chains_per_shard
+    n_total = n_sobol + cfg.refine_sets
+    n_shards = math.ceil(n_total / per)
+    if n_sobol % per:
+        raise ValueError('sobol_sets must be a multiple of chains_per_shard')
+    done_shards = {i for i in range(n_shards) if shards.shard_path(directory, i).exists()}
+    bar = tqdm(total=n_total * cfg.k_points, unit='pt', desc='steady-state sweep',
+               disable=not show_progress, smoothing=0.05,
+               mininterval=1.0 if sys.stderr.isatty() else 30.0)
+    bar.update(sum(min(per, n_total - i * per) for i in done_shards) * cfg.k_points)
+
+    def run_phase(angle_sets: np.ndarray, first_id: int) -> None:
+        ids = first_id + np.arange(angle_sets.shape[0])
+        todo = np.array([shards.shard_path(directory, i // per).exists() is False
+                         for i in ids])
+        pending: dict[int, dict[int, dict]] = {}
+
+        def on_chain(chain: int, samples: dict) -> None:
+            shard = chain // per
+            pending.setdefault(shard, {})[chain] = samples
+            members = range(shard * per, min((shard + 1) * per, n_total))
+            if len(pending[shard]) == len(members):
+                parts = [pending[shard][c] for c in members]
+                shards.write_shard(directory, shard, {
+                    k: np.concatenate([p[k] for p in parts]) for k in FIELDS})
+                del pending[shard]
+
+        run_chains(angle_sets[todo], ids[todo], cfg, cavity_cfg, on_chain, bar.update)
+
+    run_phase(sobol, 0)
+    if cfg.refine_sets:
+        sobol_data = shards.load_dataset(directory)
+        sobol_data = {k: v[sobol_data['chain'] < n_sobol] for k, v in sobol_data.items()}
+        best = best_angle_sets(sobol_data, max(8, cfg.refine_sets // 8))
+        run_phase(refine_angles(best, cfg.refine_sets, cfg.refine_sigma, cfg.seed), n_sobol)
+    bar.close()
+    data = shards.load_dataset(directory)
+    return shards.finish_metadata(directory, {
+        'wall_seconds_this_run': round(time.monotonic() - started, 1),
+        'converged_fraction': float(data['converged'].mean()),
+        'round_trips_total': int(data['round_trips'].sum()),
+    })

@@ -1,0 +1,117 @@
+"""The birefringence estimator: a conditional variational autoencoder (paper section 3B).
+
+Unsupervised: it never sees K. The encoder reads a window of ``w`` recent measurements
+``(E, M, alpha)`` (as :func:`features`) and returns a Gaussian posterior over a small
+latent z; the decoder reconstructs the window's ``(E_n, logM_n)`` from z *and the
+angles*. Because the angles are given to the decoder, z only has to carry what the
+angles do not explain about the laser's response, and that is mainly the birefringence.
+One latent coordinate is chosen as the K surrogate by a rule that uses no labels: the
+smoothest one over time on the training trajectories (smallest mean squared step
+relative to its variance), among coordinates the model actually uses. The surrogate is
+published standardized (zero mean, unit variance on the training data), not in K's units.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import torch
+from torch import nn
+
+from dlmpc_ros.learning.features import N_FEATURES, Normalizer, angle_features, features
+
+
+@dataclass
+class VAEConfig:
+    """Architecture and the surrogate choice of the estimator."""
+
+    window: int = 1
+    latent: int = 2
+    hidden: int = 64
+    beta: float = 0.1
+    normalizer: dict = field(default_factory=lambda: Normalizer().to_dict())
+    surrogate_dim: int = 0
+    surrogate_mean: float = 0.0
+    surrogate_std: float = 1.0
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+class ConditionalVAE(nn.Module):
+    """Encoder q(z | window of features), decoder p(window of states | z, angles)."""
+
+    def __init__(self, config: VAEConfig) -> None:
+        super().__init__()
+        self.config = config
+        self.norm = Normalizer(**config.normalizer)
+        w, h, z = config.window, config.hidden, config.latent
+        self.encoder = nn.Sequential(nn.Linear(w * N_FEATURES, h), nn.ReLU(), nn.Linear(h, h),
+                                     nn.ReLU(), nn.Linear(h, 2 * z))
+        self.decoder = nn.Sequential(nn.Linear(z + w * 8, h), nn.ReLU(), nn.Linear(h, h),
+                                     nn.ReLU(), nn.Linear(h, w * 2))
+
+    def encode(self, measured: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Posterior mean and log-variance (B, latent) of measurements (B, w, 6)."""
+        x = features(measured, self.norm).flatten(1)  # (B, w * 10)
+        mu, logvar = self.encoder(x).chunk(2, dim=-1)
+        return mu, logvar.clamp(-12.0, 8.0)
+
+    def decode(self, z: torch.Tensor, measured: torch.Tensor) -> torch.Tensor:
+        """Reconstructed normalized states (B, w, 2) from z and the window's angles."""
+        angles = angle_features(measured[..., 2:6]).flatten(1)  # (B, w * 8)
+        return self.decoder(torch.cat([z, angles], dim=-1)).view(-1, self.config.window, 2)
+
+    def loss(self, measured: torch.Tensor, generator: torch.Generator | None = None
+             ) -> tuple[torch.Tensor, dict[str, float]]:
+        """Negative ELBO per sample: squared reconstruction error + beta * KL."""
+        mu, logvar = self.encode(measured)
+        eps = torch.randn(mu.shape, generator=generator)
+        z = mu + torch.exp(0.5 * logvar) * eps
+        target = self.norm.states(measured[..., 0], measured[..., 1])  # (B, w, 2)
+        recon = ((self.decode(z, measured) - target) ** 2).sum(dim=(1, 2)).mean()
+        kl = (-0.5 * (1 + logvar - mu ** 2 - logvar.exp())).sum(dim=1).mean()
+        return recon + self.config.beta * kl, {'recon': float(recon.detach()),
+                                               'kl': float(kl.detach())}
+
+    @torch.no_grad()
+    def surrogate(self, measured: torch.Tensor) -> torch.Tensor:
+        """Standardized K surrogate (B,) of measurement windows (B, w, 6)."""
+        mu, _ = self.encode(measured)
+        c = self.config
+        return (mu[:, c.surrogate_dim] - c.surrogate_mean) / c.surrogate_std
+
+
+def windows(measured: np.ndarray, window: int) -> np.ndarray:
+    """Sliding windows (lanes * (T - w + 1), w, 6) of trajectories (lanes, T, 6)."""
+    lanes, steps, _ = measured.shape
+    idx = np.arange(window)[None, :] + np.arange(steps - window + 1)[:, None]
+    return measured[:, idx].reshape(-1, window, measured.shape[-1])
+
+
+def steady_windows(measured: np.ndarray, window: int) -> np.ndarray:
+    """Steady states (B, 6) as windows of ``window`` identical measurements."""
+    return np.repeat(measured[:, None, :], window, axis=1)
+
+
+def choose_surrogate(model: ConditionalVAE, trajectories: np.ndarray,
+                     min_kl: float = 0.05) -> tuple[int, dict[str, list[float]]]:
+    """Pick the smoothest used latent coordinate over time (no K labels).
+
+    trajectories: (lanes, T, 6). Returns the coordinate and the per-coordinate scores.
+    """
+    w = model.config.window
+    with torch.no_grad():
+        batch = torch.as_tensor(windows(trajectories, w), dtype=torch.float32)
+        mu, logvar = model.encode(batch)
+    steps = trajectories.shape[1] - w + 1
+    mu = mu.numpy().reshape(trajectories.shape[0], steps, -1)
+    kl = (-0.5 * (1 + logvar - torch.as_tensor(mu.reshape(-1, mu.shape[-1])) ** 2
+                  - logvar.exp())).mean(0).numpy()
+    roughness = (np.diff(mu, axis=1) ** 2).mean(axis=(0, 1)) / mu.reshape(-1, mu.shape[-1]).var(0)
+    eligible = np.flatnonzero(kl > min_kl)
+    if eligible.size == 0:
+        eligible = np.arange(mu.shape[-1])
+    dim = int(eligible[np.argmin(roughness[eligible])])
+    return dim, {'kl_per_dim': kl.tolist(), 'roughness_per_dim': roughness.tolist()}
