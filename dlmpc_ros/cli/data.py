@@ -23,7 +23,7 @@ from dlmpc_ros.learning.trajectories import TrajectoryConfig, generate_trajector
 QUICK_SWEEP = SweepConfig(sobol_sets=32, refine_sets=16, k_points=7, batch=48,
                           chains_per_shard=16, first_cap=200, cap=60)
 QUICK_ORACLE = OracleConfig(candidates=2, first_step=0.08, min_step=0.04, max_iterations=3,
-                            check_directions=2)
+                            cap=100, check_directions=2)
 QUICK_TRAJECTORIES = TrajectoryConfig(train_lasers=6, test_lasers=3, round_trips=1500,
                                       segment_periods=50)
 

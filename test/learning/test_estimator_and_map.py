@@ -1,0 +1,96 @@
+"""The VAE estimator and the K-to-angles map, trained on the tiny dataset."""
+
+import numpy as np
+import pytest
+import torch
+
+from dlmpc_ros.learning.checkpoint import ModelFileError, load_checkpoint, save_checkpoint
+from dlmpc_ros.learning.features import Normalizer
+from dlmpc_ros.learning.fit import fit
+from dlmpc_ros.learning.kmap import SubsetRule, train_kmap, training_subset
+from dlmpc_ros.learning.pipeline import (Paths, load_kmap, load_vae, train_kmap_stage,
+                                         train_vae_stage)
+from dlmpc_ros.learning.vae import ConditionalVAE, VAEConfig, choose_surrogate, windows
+
+
+def _synthetic(lanes=4, steps=300, seed=0):
+    rng = np.random.default_rng(seed)
+    k = np.cumsum(rng.normal(0, 0.02, (lanes, steps)), axis=1)
+    alpha = rng.uniform(-1.5, 1.5, (lanes, steps, 4))
+    e = 3 + np.sin(2 * alpha[..., 0]) + 2 * k
+    m = 25 * np.exp(0.3 * np.cos(2 * alpha[..., 1]) - k)
+    return np.concatenate([e[..., None], m[..., None], alpha], -1).astype(np.float32), k
+
+
+def test_vae_loss_decreases_and_surrogate_tracks_the_hidden_factor():
+    measured, k = _synthetic()
+    norm = Normalizer.fit(measured[..., 0], measured[..., 1])
+    torch.manual_seed(0)
+    model = ConditionalVAE(VAEConfig(window=1, normalizer=norm.to_dict()))
+    history = fit(model, model.loss, windows(measured, 1), epochs=30, batch=128,
+                  show_progress=False)
+    assert history[-1] < 0.5 * history[0]
+    dim, scores = choose_surrogate(model, measured)
+    mu, _ = model.encode(torch.as_tensor(windows(measured, 1)))
+    r = np.corrcoef(mu[:, dim].detach().numpy(), k.ravel())[0, 1]
+    assert abs(r) > 0.8, (r, scores)
+
+
+def test_checkpoint_round_trip_and_clear_errors(tmp_path):
+    model = ConditionalVAE(VAEConfig())
+    path = save_checkpoint(tmp_path / 'vae.pt', 'vae', model.state_dict(),
+                           model.config.to_dict(), {'a': 1.0}, 'abc')
+    loaded, payload = load_vae(path)
+    x = torch.rand(5, 1, 6) + 1
+    assert torch.equal(loaded.surrogate(x), model.surrogate(x))
+    assert payload['metrics'] == {'a': 1.0} and payload['data_fingerprint'] == 'abc'
+    with pytest.raises(ModelFileError, match='missing.*dlmpc-train vae'):
+        load_checkpoint(tmp_path / 'nope.pt', 'vae')
+    (tmp_path / 'bad.pt').write_bytes(b'not a model')
+    with pytest.raises(ModelFileError, match='corrupt.*dlmpc-train vae'):
+        load_checkpoint(tmp_path / 'bad.pt', 'vae')
+    with pytest.raises(ModelFileError, match='not a kmap model'):
+        load_checkpoint(path, 'kmap')
+    torch.save({'kind': 'vae', 'evil': torch.nn.Linear(1, 1)}, tmp_path / 'pickled.pt')
+    with pytest.raises(ModelFileError, match='corrupt'):  # weights_only refuses modules
+        load_checkpoint(tmp_path / 'pickled.pt', 'vae')
+
+
+def test_subset_rule_takes_best_per_interval_and_avoids_jumps():
+    s = np.repeat(np.linspace(-1, 1, 5), 3)
+    o = np.tile([0.10, 0.11, 0.05], 5)
+    base = np.zeros((15, 4))
+    base[1::3] = 1.2  # the slightly better candidate is on another branch ...
+    base[4] = 0.0     # ... except in interval 1, where the branches swap
+    base[3] = 1.2
+    centres, angles, chosen_o = training_subset(
+        s, o, base, SubsetRule(intervals=5, delta=0.4, top=2, jump_penalty=0.0))
+    assert centres.size == 5 and np.allclose(chosen_o, 0.11)
+    _, smooth, _ = training_subset(s, o, base, SubsetRule(intervals=5, delta=0.4, top=2,
+                                                          jump_penalty=1.0))
+    assert np.ptp(smooth, axis=0).max() < 1e-12  # one branch throughout
+
+
+def test_kmap_fit_reduces_loss():
+    centres = np.linspace(-2, 2, 40)
+    targets = np.stack([0.3 * centres, -0.2 * centres, 0.1 + 0 * centres, 0.4 * np.tanh(centres)],
+                       axis=1)
+    model, losses = train_kmap(centres, targets, __import__(
+        'dlmpc_ros.learning.kmap', fromlist=['KMapConfig']).KMapConfig(), steps=600)
+    assert losses[-1] < 0.05 * losses[0]
+    with torch.no_grad():
+        got = model(torch.as_tensor(centres, dtype=torch.float32)[:, None]).numpy()
+    assert np.abs(got - targets).max() < 0.1
+
+
+def test_training_stages_on_the_tiny_dataset(quick_data, tmp_path):
+    paths = Paths(quick_data, tmp_path / 'models')
+    vae_metrics = train_vae_stage(paths, epochs=2, show_progress=False)
+    assert 0 <= vae_metrics['abs_pearson_r_heldout'] <= 1
+    assert (paths.figures / 'vae_surrogate.png').stat().st_size > 10_000
+    kmap_metrics = train_kmap_stage(paths, steps=100, show_progress=False)
+    assert len(kmap_metrics['per_k_ratio_from_oracle_state']) == 7
+    model, payload = load_kmap(paths.model('kmap'))
+    assert payload['metrics']['vae_fingerprint'] == load_vae(paths.model('vae'))[1][
+        'data_fingerprint']
+    assert model(torch.zeros(3, 1)).shape == (3, 4)
