@@ -8,7 +8,7 @@ OUT    ?= out
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export ROS_LOG_DIR ?= $(CURDIR)/$(OUT)/ros-log
 
-.PHONY: venv test demo bench lint clean
+.PHONY: venv test demo bench lint data models clean
 
 venv: $(STAMP)
 
@@ -28,6 +28,13 @@ demo: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) bench/bench_cavity.py --out $(OUT)/bench
+
+# Regenerate the training data (data/, not committed) and the shipped models (models/).
+data: $(STAMP)
+	$(VENV)/bin/dlmpc-data all --data-dir data
+
+models: data
+	$(VENV)/bin/dlmpc-train all --data-dir data --models-dir models
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check dlmpc_ros test bench

@@ -26,7 +26,7 @@ setup(
         'matplotlib>=3.7',
         'pyyaml',
     ],
-    extras_require={'ml': ['torch>=2.2,<3']},
+    extras_require={'ml': ['torch>=2.2,<3', 'tqdm>=4.60']},
     zip_safe=True,
     maintainer='dlmpc_ros developers',
     maintainer_email='dlmpc-ros@example.org',
@@ -38,6 +38,8 @@ setup(
             f'drift_injector = {PACKAGE}.nodes.drift_injector_node:main',
             f'bringup = {PACKAGE}.bringup:main',
             f'dlmpc-sim = {PACKAGE}.cli.sim:main',
+            f'dlmpc-data = {PACKAGE}.cli.data:main',
+            f'dlmpc-train = {PACKAGE}.cli.train:main',
         ],
     },
 )
