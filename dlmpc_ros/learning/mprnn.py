@@ -16,8 +16,9 @@ and predicts ``K_{tau+1}`` (the surrogate birefringence, K head) and ``v_{tau+1}
 cells (tau = t-N .. t-1) whose predictions ``v_{t-N+1..t}`` are one-step predictions of
 known rows, then N decoder cells (tau = t .. t+N-1) predicting ``v_{t+1..t+N}``. The first
 encoder cell reads back to row ``t-N-2b+1``, so a prediction needs :meth:`MPRNN.min_history`
-= N + 2b rows ``x_{t-N-2b+1..t}`` (the paper's "N + 2b time steps"; with N + 2b - 1 rows
-the first encoder cell would have to predict ``v_{t+1}``, which is not known data).
+= N + 2b rows ``x_{t-N-2b+1..t}``, the paper's "N + 2b time steps". (Encoder windows ending
+at t-N+1 .. t would need only N + 2b - 1 rows, but then the last encoder cell would predict
+the unknown ``v_{t+1}``, duplicating the first decoder cell.)
 All cells share one set of weights (one :class:`MPRNNCell`).
 
 Decoder windows reach past t: with ``feed_back=True`` (receding-horizon prediction) row
@@ -91,7 +92,10 @@ class MPRNNConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
                 raise ValueError(f'MPRNNConfig.{name} must be an integer >= 1, got {value!r}')
-        Normalizer(**self.norm)  # raises TypeError on unknown keys
+        try:
+            Normalizer(**self.norm)
+        except TypeError as err:
+            raise ValueError(f'MPRNNConfig.norm is not a Normalizer dict: {err}') from None
 
     @property
     def normalizer(self) -> Normalizer:
@@ -537,7 +541,13 @@ class HorizonErrors:
     o_persistence: np.ndarray  # (N,)
 
     def to_dict(self) -> dict[str, list[float]]:
-        return {name: [float(x) for x in value] for name, value in asdict(self).items()}
+        """``{'rmse_E_model': [...], 'rmse_E_persistence': [...], ... M, O}`` (horizons 1..N)."""
+        out = {}
+        for name in ('e', 'm', 'o'):
+            for kind, value in (('model', getattr(self, name)),
+                                ('persistence', getattr(self, f'{name}_persistence'))):
+                out[f'rmse_{name.upper()}_{kind}'] = [float(x) for x in value]
+        return out
 
 
 @torch.no_grad()

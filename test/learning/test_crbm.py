@@ -18,8 +18,8 @@ def correlated_windows(n: int = 3000, seed: int = 0) -> tuple[torch.Tensor, torc
     scale = rng.uniform(0.2, 3.0, D)
     v = (z @ mix_v + 0.2 * rng.standard_normal((n, D))) * scale + rng.uniform(-2, 2, D)
     c = 0.8 * z @ mix_c + 0.3 * rng.standard_normal((n, D))
-    as_windows = lambda a: torch.tensor(a, dtype=torch.float32).reshape(n, B, 10)  # noqa: E731
-    return as_windows(v), as_windows(c)
+    return (torch.tensor(v, dtype=torch.float32).reshape(n, B, 10),
+            torch.tensor(c, dtype=torch.float32).reshape(n, B, 10))
 
 
 def test_cd1_lowers_reconstruction_error():
@@ -58,7 +58,8 @@ def test_pretrain_copies_folded_weights_into_the_input_layers():
     cell = model.cell
     with torch.no_grad():
         # the cell's two long-term pre-activations add up to the machine's hidden input
-        v_s, c_s = (v.flatten(1) - crbm.v_mean) / crbm.v_std, (c.flatten(1) - crbm.c_mean) / crbm.c_std
+        v_s = (v.flatten(1) - crbm.v_mean) / crbm.v_std
+        c_s = (c.flatten(1) - crbm.c_mean) / crbm.c_std
         machine = v_s @ crbm.weight.T + c_s @ crbm.cond_hidden.T + crbm.hidden_bias
         torch.testing.assert_close(cell.lcur(v.flatten(1)) + cell.past(c.flatten(1)), machine,
                                    atol=1e-4, rtol=1e-4)

@@ -94,3 +94,29 @@ def test_training_stages_on_the_tiny_dataset(quick_data, tmp_path):
     assert payload['metrics']['vae_fingerprint'] == load_vae(paths.model('vae'))[1][
         'data_fingerprint']
     assert model(torch.zeros(3, 1)).shape == (3, 4)
+
+
+def test_train_command_builds_every_model_file_and_the_card(quick_data, tmp_path):
+    from dlmpc_ros.cli.train import main as train_main
+    from dlmpc_ros.learning.mprnn import load_mprnn
+
+    models = tmp_path / 'models'
+    assert train_main(['all', '--quick', '--no-progress', '--data-dir', str(quick_data),
+                       '--models-dir', str(models)]) == 0
+    for name in ('vae.pt', 'kmap.pt', 'mprnn.pt', 'metrics.json', 'MODEL_CARD.md'):
+        assert (models / name).is_file(), name
+    kmap, _ = load_kmap(models / 'kmap.pt')
+    model = load_mprnn(models / 'mprnn.pt', kmap=kmap)
+    history = torch.zeros(2, model.min_history(), 10)
+    out = model(history)  # controls from the map
+    assert out.u.shape == (2, model.config.horizon, 4)
+    card = (models / 'MODEL_CARD.md').read_text()
+    assert '| vae |' in card and '| mprnn |' in card
+
+
+def test_train_command_says_how_to_make_missing_inputs(tmp_path, capsys):
+    from dlmpc_ros.cli.train import main as train_main
+
+    assert train_main(['kmap', '--data-dir', str(tmp_path), '--models-dir',
+                       str(tmp_path)]) == 2
+    assert 'dlmpc-train vae' in capsys.readouterr().err

@@ -1,0 +1,113 @@
+"""The predictor stage of ``dlmpc-train``: windows, three-stage training, horizon errors."""
+
+from __future__ import annotations
+
+import copy
+import time
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from dlmpc_ros.learning.checkpoint import fingerprint_arrays
+from dlmpc_ros.learning.crbm import CRBMTrainConfig
+from dlmpc_ros.learning.mprnn import (MPRNN, MPRNNConfig, TrainConfig, WindowDataset,
+                                      evaluate_horizon_errors, save_mprnn, train_three_stage)
+from dlmpc_ros.learning.pipeline import (Paths, load_kmap, load_vae, measured_array,
+                                         surrogate_of)
+from dlmpc_ros.learning.trajectories import load_trajectories
+from dlmpc_ros.learning.vae import windows
+
+FULL = TrainConfig(crbm=CRBMTrainConfig(epochs=5), single_step_epochs=8, horizon_epochs=12,
+                   batch_size=256, lr=2e-3)
+QUICK = TrainConfig(crbm=CRBMTrainConfig(epochs=1, max_samples=2000), single_step_epochs=1,
+                    horizon_epochs=1, batch_size=64)
+
+
+def surrogate_series(vae, measured: np.ndarray) -> np.ndarray:
+    """Surrogate (lanes, T) of trajectories (lanes, T, 6); the first w-1 rows repeat the
+    first full window's value."""
+    w = vae.config.window
+    s = surrogate_of(vae, windows(measured, w)).reshape(measured.shape[0], -1)
+    return np.concatenate([np.repeat(s[:, :1], w - 1, axis=1), s], axis=1)
+
+
+def train_mprnn_stage(paths: Paths, seed: int = 0, quick: bool = False,
+                      show_progress: bool = True, stride: int = 2) -> dict:
+    """Train the MP-RNN on the training trajectories; measure on held-out ones.
+
+    Held-out lanes are split in two: the first half chooses between the models after
+    stage 2 and after stage 3 (lower O error at horizon N), the second half measures.
+    """
+    started = time.monotonic()
+    traj = load_trajectories(paths.trajectories)
+    vae, vae_payload = load_vae(paths.model('vae'))
+    kmap, _ = load_kmap(paths.model('kmap'))
+    measured = measured_array(traj)
+    surrogate = surrogate_series(vae, measured)
+    held = np.flatnonzero(traj['held_out'])
+    val_lanes, test_lanes = held[:max(1, held.size // 2)], held[max(1, held.size // 2):]
+    if test_lanes.size == 0:
+        test_lanes = val_lanes
+    config = MPRNNConfig(norm=vae.config.normalizer)
+    train_cfg = QUICK if quick else TrainConfig(**{**FULL.__dict__, 'seed': seed})
+    train = WindowDataset(measured[~traj['held_out']], surrogate[~traj['held_out']], config,
+                          stride=stride)
+    val = WindowDataset(measured[val_lanes], surrogate[val_lanes], config, stride=5)
+    test = WindowDataset(measured[test_lanes], surrogate[test_lanes], config, stride=1)
+    torch.manual_seed(seed)
+    model = MPRNN(config, kmap=kmap, seed=seed)
+    total = train_cfg.crbm.epochs + train_cfg.single_step_epochs + train_cfg.horizon_epochs
+    bar = tqdm(total=total, desc='MP-RNN', unit='epoch', disable=not show_progress)
+    snapshots: dict[str, tuple[dict, float]] = {}
+
+    def progress(stage: str, epoch: int, value: float) -> None:
+        bar.update(1)
+        bar.set_postfix(stage=stage, value=f'{value:.4f}')
+        last_epoch = {'single_step': train_cfg.single_step_epochs - 1,
+                      'receding_horizon': train_cfg.horizon_epochs - 1}.get(stage)
+        if epoch == last_epoch:
+            err = evaluate_horizon_errors(model, val)
+            snapshots[stage] = (copy.deepcopy(model.state_dict()), float(err.o[-1]))
+            model.train()
+
+    histories = train_three_stage(model, train, train_cfg, progress)
+    bar.close()
+    chosen = min(snapshots, key=lambda k: snapshots[k][1]) if snapshots else 'receding_horizon'
+    if snapshots:
+        model.load_state_dict(snapshots[chosen][0])
+    model.eval()
+    errors = evaluate_horizon_errors(model, test).to_dict()
+    metrics = {
+        **{k: [float(x) for x in v] for k, v in errors.items()},
+        'chosen_after_stage': chosen,
+        'validation_O_rmse_at_horizon': {k: v[1] for k, v in snapshots.items()},
+        'histories': histories, 'train_windows': len(train), 'test_windows': len(test),
+        'train_config': train_cfg.to_dict(), 'vae_fingerprint': vae_payload['data_fingerprint'],
+        'wall_seconds': round(time.monotonic() - started, 1), 'seed': seed,
+    }
+    save_mprnn(paths.model('mprnn'), model, metrics,
+               fingerprint_arrays({'measured': measured, 'surrogate': surrogate}))
+    plot_horizon_errors(metrics, paths.figures / 'mprnn_horizon.png')
+    return metrics
+
+
+def plot_horizon_errors(metrics: dict, path) -> None:
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.5), constrained_layout=True)
+    for ax, key in zip(axes, ('E', 'M', 'O')):
+        model = metrics[f'rmse_{key}_model']
+        steps = np.arange(1, len(model) + 1)
+        ax.plot(steps, model, 'o-', label='MP-RNN')
+        ax.plot(steps, metrics[f'rmse_{key}_persistence'], 's--', label='persistence')
+        ax.set_xlabel('horizon (control periods)')
+        ax.set_ylabel(f'RMSE of {key}')
+        ax.legend(fontsize=8)
+    fig.suptitle('Prediction error on held-out trajectories')
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,286 @@
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from dlmpc_ros.learning.checkpoint import ModelFileError, save_checkpoint
+from dlmpc_ros.learning.crbm import CRBMTrainConfig
+from dlmpc_ros.learning.features import Normalizer, angle_features, features
+from dlmpc_ros.learning.mprnn import (
+    MPRNN,
+    MPRNNConfig,
+    TrainConfig,
+    WindowDataset,
+    evaluate_horizon_errors,
+    load_mprnn,
+    mprnn_loss,
+    save_mprnn,
+    train_three_stage,
+)
+
+CFG = MPRNNConfig(window=2, horizon=4, n_hidden=8, n_latent=6)
+N, H = CFG.horizon, CFG.min_history()
+
+
+def random_inputs(batch: int = 3, seed: int = 0, rows: int = H
+                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """history (batch, rows, 10), future_u (batch, N, 4), future_x (batch, N, 10)."""
+    gen = torch.Generator().manual_seed(seed)
+    angles = (torch.rand(batch, rows + N, 4, generator=gen) - 0.5) * torch.pi
+    states = torch.randn(batch, rows + N, 2, generator=gen)
+    x = torch.cat([states, angle_features(angles)], dim=-1)
+    return x[:, :rows], angles[:, rows:], x[:, rows:]
+
+
+class CellInputs:
+    """Records the current window given to every cell call (encoder calls first)."""
+
+    def __init__(self, model: MPRNN) -> None:
+        self.x_cur: list[torch.Tensor] = []
+        self.handle = model.cell.register_forward_pre_hook(self._record)
+
+    def _record(self, module, args):
+        self.x_cur.append(args[1].detach().clone())
+
+    def decoder(self, j: int) -> torch.Tensor:
+        return self.x_cur[N + j]
+
+
+def test_config_and_history_length():
+    assert CFG.min_history() == N + 2 * CFG.window == MPRNN(CFG).min_history()
+    assert MPRNNConfig.from_dict(CFG.to_dict()) == CFG
+    with pytest.raises(ValueError, match='unknown'):
+        MPRNNConfig.from_dict({**CFG.to_dict(), 'extra': 1})
+    with pytest.raises(ValueError, match='window'):
+        MPRNNConfig(window=0)
+    with pytest.raises(ValueError, match='history must be'):
+        MPRNN(CFG)(random_inputs(rows=H - 1)[0], random_inputs(rows=H - 1)[1])
+
+
+def test_output_shapes_and_longer_history():
+    model = MPRNN(CFG)
+    history, future_u, _ = random_inputs(batch=5, rows=H + 7)
+    out = model(history, future_u)
+    assert out.v.shape == (5, N, 2) and out.k.shape == (5, N, 1) and out.u.shape == (5, N, 4)
+    assert out.objective.shape == (5, N)
+    assert out.v_enc.shape == (5, N, 2) and out.k_enc.shape == (5, N, 1)
+    torch.testing.assert_close(out.objective, model.norm.objective(out.v))
+    torch.testing.assert_close(out.u, future_u)
+    only_needed = model(history[:, -H:], future_u)  # older rows are not used
+    torch.testing.assert_close(only_needed.v, out.v)
+
+
+def test_objective_gradient_reaches_every_future_control():
+    model = MPRNN(CFG)
+    history, future_u, _ = random_inputs(batch=4)
+    future_u.requires_grad_(True)
+    model(history, future_u).objective.sum().backward()
+    grad = future_u.grad
+    assert grad is not None and torch.isfinite(grad).all()
+    assert (grad.abs().sum(dim=(0, 2)) > 0).all()  # each of the N steps
+
+
+def test_encoder_is_causal():
+    """Encoder cell j predicts v_{t-N+j+1} from rows up to t-N+j and control u_{t-N+j+1}."""
+    model = MPRNN(CFG)
+    history, future_u, _ = random_inputs()
+    out = model(history, future_u)
+    other_u = random_inputs(seed=1)[1]
+    torch.testing.assert_close(model(history, other_u).v_enc, out.v_enc)
+    target_row = H - N  # the row of v_{t-N+1}, the first encoder cell's target
+    changed = history.clone()
+    changed[:, target_row, :2] += 1.0  # its states, not its control
+    out2 = model(changed, future_u)
+    torch.testing.assert_close(out2.v_enc[:, 0], out.v_enc[:, 0])
+    assert not torch.allclose(out2.v_enc[:, 1], out.v_enc[:, 1])
+
+
+def test_receding_horizon_feeds_predictions_back():
+    model = MPRNN(CFG)
+    history, future_u, future_x = random_inputs()
+    rec = CellInputs(model)
+    out = model(history, future_u, feed_back=True)
+    for j in range(1, N):  # the newest row of decoder cell j's window is step t+j
+        fed = torch.cat([out.v[:, j - 1], angle_features(out.u[:, j - 1])], dim=-1)
+        torch.testing.assert_close(rec.decoder(j)[:, -1], fed)
+    rec.x_cur.clear()
+    model(history, future_u, feed_back=False, future_x=future_x)
+    for j in range(1, N):
+        torch.testing.assert_close(rec.decoder(j)[:, -1], future_x[:, j - 1])
+    rec.handle.remove()
+
+
+def test_perturbing_the_first_prediction_moves_only_fed_back_steps():
+    model = MPRNN(CFG)
+    history, future_u, future_x = random_inputs()
+    calls = []
+
+    def nudge_first_decoder_output(module, args, output):
+        calls.append(None)
+        return output + 0.5 if len(calls) == N + 1 else output
+
+    results = {}
+    for feed_back in (True, False):
+        plain = model(history, future_u, feed_back=feed_back, future_x=future_x)
+        calls.clear()
+        handle = model.cell.out.register_forward_hook(nudge_first_decoder_output)
+        nudged = model(history, future_u, feed_back=feed_back, future_x=future_x)
+        handle.remove()
+        results[feed_back] = plain, nudged
+    plain, nudged = results[True]
+    torch.testing.assert_close(nudged.v[:, 0], plain.v[:, 0] + 0.5)
+    assert not torch.allclose(nudged.v[:, 1:], plain.v[:, 1:])
+    assert not torch.allclose(nudged.k[:, 1:], plain.k[:, 1:])
+    plain, nudged = results[False]  # teacher forcing: later inputs are the true rows
+    torch.testing.assert_close(nudged.v[:, 1:], plain.v[:, 1:])
+    torch.testing.assert_close(nudged.k, plain.k)
+
+
+def test_future_x_is_ignored_when_feeding_back_and_used_otherwise():
+    model = MPRNN(CFG)
+    history, future_u, future_x = random_inputs()
+    other_x = random_inputs(seed=7)[2]
+    a = model(history, future_u, feed_back=True, future_x=future_x)
+    b = model(history, future_u, feed_back=True, future_x=other_x)
+    c = model(history, future_u, feed_back=True)
+    torch.testing.assert_close(a.v, b.v)
+    torch.testing.assert_close(a.v, c.v)
+    forced = model(history, future_u, feed_back=False, future_x=future_x)
+    torch.testing.assert_close(forced.v[:, 0], a.v[:, 0])  # step 1 sees only the history
+    assert not torch.allclose(forced.v[:, 1:], a.v[:, 1:])
+    with pytest.raises(ValueError, match='future_x'):
+        model(history, future_u, feed_back=False)
+
+
+def test_kmap_seeds_missing_controls():
+    kmap = nn.Linear(1, 4)
+    model = MPRNN(CFG, kmap=kmap)
+    history, future_u, _ = random_inputs()
+    out = model(history)
+    torch.testing.assert_close(out.u, kmap(out.k))
+    partial = model(history, future_u[:, :2])
+    torch.testing.assert_close(partial.u[:, :2], future_u[:, :2])
+    torch.testing.assert_close(partial.u[:, 2:], kmap(partial.k[:, 2:]))
+    assert all(key.startswith('cell.') for key in model.state_dict())
+    assert not any(p is kmap.weight for p in model.parameters())
+    model.kmap = None
+    with pytest.raises(ValueError, match='kmap'):
+        model(history)
+    with pytest.raises(ValueError, match='kmap'):
+        model(history, future_u[:, :2])
+
+
+def test_windows_line_up_with_the_trajectories():
+    rng = np.random.default_rng(0)
+    n_traj, n_t = 2, H + N + 5
+    measured = np.concatenate([rng.uniform(2, 4, (n_traj, n_t, 1)),
+                               rng.uniform(20, 60, (n_traj, n_t, 1)),
+                               rng.uniform(-1.5, 1.5, (n_traj, n_t, 4))], axis=-1)
+    surrogate = rng.standard_normal((n_traj, n_t))
+    data = WindowDataset(measured, surrogate, CFG)
+    assert len(data) == n_traj * (n_t - H - N + 1)
+    batch = data.batch()
+    feats = features(torch.tensor(measured), CFG.normalizer).float()
+    for w, (traj, t) in enumerate(data.index.tolist()):
+        torch.testing.assert_close(batch.history[w], feats[traj, t - H + 1:t + 1])
+        torch.testing.assert_close(batch.future_x[w], feats[traj, t + 1:t + N + 1])
+        torch.testing.assert_close(batch.future_u[w],
+                                   torch.tensor(measured[traj, t + 1:t + N + 1, 2:6]).float())
+        torch.testing.assert_close(batch.future_s[w],
+                                   torch.tensor(surrogate[traj, t + 1:t + N + 1]).float())
+        torch.testing.assert_close(batch.past_s[w],
+                                   torch.tensor(surrogate[traj, t - N + 1:t + 1]).float())
+    assert len(data.subset(data.index[:, 0] == 1)) == len(data) // 2
+    strided = WindowDataset(measured, surrogate, CFG, stride=3)
+    assert len(strided) == n_traj * len(range(H - 1, n_t - N, 3))
+    with pytest.raises(ValueError, match='shorter'):
+        WindowDataset(measured[:, :H + N - 1], surrogate[:, :H + N - 1], CFG)
+
+
+# -- tiny end-to-end on a synthetic driven system -----------------------------------------
+def synthetic_laser(n_traj: int, n_t: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(E, M) relax towards targets set by the angles and a drifting K; the angles jump to
+    random values at random steps. Returns measured (n_traj, n_t, 6) and a noisy K."""
+    rng = np.random.default_rng(seed)
+    measured = np.zeros((n_traj, n_t, 6))
+    surrogate = np.zeros((n_traj, n_t))
+    for i in range(n_traj):
+        phase, period = rng.uniform(0, 2 * np.pi), rng.uniform(40, 80)
+        alpha = rng.uniform(-np.pi / 2, np.pi / 2, 4)
+        e, logm = 3.0, 3.5
+        for t in range(n_t):
+            if rng.random() < 0.3:
+                alpha = rng.uniform(-np.pi / 2, np.pi / 2, 4)
+            k = 0.25 * np.sin(2 * np.pi * t / period + phase)
+            e_target = 3.0 + 0.8 * np.cos(2 * (alpha[0] - k)) + 0.4 * np.sin(2 * alpha[1])
+            logm_target = 3.5 + 0.4 * np.cos(2 * alpha[2] + k)
+            e += 0.4 * (e_target - e) + 0.02 * rng.standard_normal()
+            logm += 0.4 * (logm_target - logm) + 0.01 * rng.standard_normal()
+            measured[i, t] = [e, np.exp(logm), *alpha]
+            surrogate[i, t] = k + 0.02 * rng.standard_normal()
+    return measured, surrogate
+
+
+@pytest.fixture(scope='module')
+def trained():
+    measured, surrogate = synthetic_laser(12, 150, seed=0)
+    norm = Normalizer.fit(measured[..., 0], measured[..., 1])
+    config = MPRNNConfig(window=2, horizon=4, n_hidden=32, n_latent=16, norm=norm.to_dict())
+    train = WindowDataset(measured, surrogate, config)
+    test = WindowDataset(*synthetic_laser(3, 100, seed=1), config)
+    model = MPRNN(config, seed=0)
+    settings = TrainConfig(crbm=CRBMTrainConfig(epochs=4), single_step_epochs=6,
+                           horizon_epochs=5, batch_size=32, lr=3e-3)
+    seen = []
+    history = train_three_stage(model, train, settings,
+                                progress=lambda stage, epoch, loss: seen.append(stage))
+    return model, train, test, history, seen
+
+
+def test_every_stage_lowers_its_loss(trained):
+    _, _, _, history, seen = trained
+    assert list(history) == ['crbm', 'single_step', 'receding_horizon']
+    assert [len(h) for h in history.values()] == [4, 6, 5]
+    for stage, losses in history.items():
+        assert np.isfinite(losses).all(), stage
+        assert losses[-1] < losses[0], stage
+    assert seen == ['crbm'] * 4 + ['single_step'] * 6 + ['receding_horizon'] * 5
+
+
+def test_beats_persistence_at_the_horizon(trained):
+    model, train, test, _, _ = trained
+    errors = evaluate_horizon_errors(model, test)
+    for name in ('e', 'm', 'o'):
+        model_err, persist = getattr(errors, name), getattr(errors, f'{name}_persistence')
+        assert model_err.shape == persist.shape == (N,)
+        assert model_err[-1] < 0.7 * persist[-1], name
+    as_dict = errors.to_dict()
+    assert as_dict['rmse_O_model'] == pytest.approx(errors.o.tolist())
+    assert as_dict['rmse_M_persistence'] == pytest.approx(errors.m_persistence.tolist())
+    assert len(as_dict) == 6
+    batch = test.batch()
+    fed_back = mprnn_loss(model(batch.history, batch.future_u), batch)
+    assert torch.isfinite(fed_back)
+
+
+def test_save_load_round_trip_and_bad_files(trained, tmp_path):
+    model, _, test, _, _ = trained
+    kmap = nn.Linear(1, 4)
+    path = save_mprnn(tmp_path / 'mprnn.pt', model, {'rmse_o_h4': 0.01}, 'abc123')
+    loaded = load_mprnn(path, kmap=kmap)
+    assert loaded.kmap is kmap and loaded.config == model.config
+    batch = test.batch(torch.arange(16))
+    with torch.no_grad():
+        a, b = model(batch.history, batch.future_u), loaded(batch.history, batch.future_u)
+    assert torch.equal(a.v, b.v) and torch.equal(a.k, b.k)
+
+    corrupt = tmp_path / 'corrupt.pt'
+    corrupt.write_bytes(path.read_bytes()[:200])
+    with pytest.raises(ModelFileError, match='corrupt'):
+        load_mprnn(corrupt)
+    with pytest.raises(ModelFileError, match='missing'):
+        load_mprnn(tmp_path / 'absent.pt')
+    wrong = save_checkpoint(tmp_path / 'wrong.pt', 'mprnn', {'x': torch.zeros(1)},
+                            model.config.to_dict(), {}, 'f')
+    with pytest.raises(ModelFileError, match='valid MP-RNN'):
+        load_mprnn(wrong)
