@@ -64,20 +64,22 @@ def pearson(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.corrcoef(np.ravel(a), np.ravel(b))[0, 1])
 
 
-def load_vae(path: Path) -> tuple[ConditionalVAE, dict]:
-    payload = load_checkpoint(path, 'vae')
-    model = ConditionalVAE(VAEConfig(**payload['config']))
+def _load(path: Path, kind: str, model_cls, config_cls) -> tuple[torch.nn.Module, dict]:
+    payload = load_checkpoint(path, kind)
+    model = model_cls(config_cls(**payload['config']))
     model.load_state_dict(payload['state_dict'])
     model.eval()
     return model, payload
+
+
+def load_vae(path: Path) -> tuple[ConditionalVAE, dict]:
+    """The estimator and its file's payload (config, metrics, fingerprint)."""
+    return _load(path, 'vae', ConditionalVAE, VAEConfig)
 
 
 def load_kmap(path: Path) -> tuple[KMap, dict]:
-    payload = load_checkpoint(path, 'kmap')
-    model = KMap(KMapConfig(**payload['config']))
-    model.load_state_dict(payload['state_dict'])
-    model.eval()
-    return model, payload
+    """The K-to-angles map and its file's payload."""
+    return _load(path, 'kmap', KMap, KMapConfig)
 
 
 def surrogate_of(vae: ConditionalVAE, measured: np.ndarray) -> np.ndarray:
