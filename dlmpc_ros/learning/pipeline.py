@@ -19,7 +19,8 @@ from dlmpc_ros.core.cavity import Cavity
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.steady import run_to_steady
 from dlmpc_ros.learning import shards
-from dlmpc_ros.learning.checkpoint import fingerprint_arrays, load_checkpoint, save_checkpoint
+from dlmpc_ros.learning.checkpoint import (ModelFileError, fingerprint_arrays, load_checkpoint,
+                                          regenerate_hint, save_checkpoint)
 from dlmpc_ros.learning.features import Normalizer
 from dlmpc_ros.learning.fit import fit
 from dlmpc_ros.learning.kmap import KMap, KMapConfig, SubsetRule, train_kmap, training_subset
@@ -66,8 +67,12 @@ def pearson(a: np.ndarray, b: np.ndarray) -> float:
 
 def _load(path: Path, kind: str, model_cls, config_cls) -> tuple[torch.nn.Module, dict]:
     payload = load_checkpoint(path, kind)
-    model = model_cls(config_cls(**payload['config']))
-    model.load_state_dict(payload['state_dict'])
+    try:
+        model = model_cls(config_cls(**payload['config']))
+        model.load_state_dict(payload['state_dict'])
+    except (TypeError, RuntimeError, KeyError) as err:
+        raise ModelFileError(f'model file {path} does not fit this version\'s {kind} model '
+                             f'({type(err).__name__}); {regenerate_hint(kind)}') from None
     model.eval()
     return model, payload
 
