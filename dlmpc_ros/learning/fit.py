@@ -32,7 +32,7 @@ def fit(model: torch.nn.Module, loss_fn: Callable[[torch.Tensor, torch.Generator
             loss, _ = loss_fn(chunk, generator)
             loss.backward()
             optimizer.step()
-            total += float(loss) * chunk.shape[0]
+            total += float(loss.detach()) * chunk.shape[0]
             count += chunk.shape[0]
         history.append(total / count)
         bar.set_postfix(loss=f'{history[-1]:.4f}')

@@ -1,0 +1,158 @@
+"""The DL-MPC controller (paper section 3D): MP-RNN planning with a VAE + map inner loop.
+
+Each control period it receives the latest measurement ``(E, M, alpha[4])`` and returns
+the angles for the next period:
+
+- inner loop (while the history is shorter than the MP-RNN needs, and whenever the
+  predictor's recent one-step error passes ``error_threshold``): the VAE's surrogate of
+  the latest measurements goes through the K-to-angles map;
+- outer loop: the MP-RNN predicts the next N states for a plan of N future angle sets,
+  seeded by the previous plan (or by the map through the predicted K), and the plan is
+  improved by gradient ascent on the summed predicted objective. The number of ascent
+  iterations grows by one after an accurate prediction and shrinks after a poor one.
+  The first planned angles are applied (receding horizon), or the whole plan over N
+  periods (``apply_all``, as in the paper).
+
+Angle limits and a maximum step per period (servo speed) are enforced on every command.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from dlmpc_ros.control.estimator import SurrogateEstimator
+from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.learning.features import features
+from dlmpc_ros.learning.kmap import KMap
+from dlmpc_ros.learning.mprnn import MPRNN
+from dlmpc_ros.learning.vae import ConditionalVAE
+
+
+@dataclass(frozen=True)
+class DLMPCConfig:
+    """Settings of the controller (angles in radians)."""
+
+    limits: AngleLimits = field(default_factory=AngleLimits)
+    min_iterations: int = 1
+    max_iterations: int = 8
+    start_iterations: int = 3
+    learning_rate: float = 0.05
+    error_threshold: float = 1.0
+    """One-step prediction error (normalized state units, averaged over recent periods)
+    above which the inner loop takes over."""
+    accurate_error: float = 0.3
+    """Errors below this count as accurate (iterations grow)."""
+    error_memory: int = 3
+    apply_all: bool = False
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.min_iterations <= self.start_iterations <= self.max_iterations:
+            raise ValueError('need 1 <= min_iterations <= start_iterations <= max_iterations')
+        if not (self.learning_rate > 0 and self.error_threshold > 0 and self.accurate_error > 0):
+            raise ValueError('learning_rate, error_threshold and accurate_error must be > 0')
+
+
+@dataclass(frozen=True)
+class ControlStep:
+    """What a controller decided in one control period."""
+
+    angles: np.ndarray  # (4,) commanded angles [rad]
+    mode: str  # 'inner' or 'outer'
+    surrogate: float
+    prediction_error: float  # NaN until a prediction could be checked
+    predicted_objective: np.ndarray  # (N,) predicted O over the horizon (empty: inner)
+    iterations: int
+    latency_ms: float
+
+
+class DLMPCController:
+    """Stateful DL-MPC controller; one :meth:`step` per control period."""
+
+    def __init__(self, vae: ConditionalVAE, kmap: KMap, mprnn: MPRNN,
+                 config: DLMPCConfig | None = None) -> None:
+        self.config = config or DLMPCConfig()
+        self.estimator = SurrogateEstimator(vae)
+        self.kmap = kmap
+        self.model = mprnn
+        self.model.kmap = kmap
+        self.model.eval()
+        for p in self.model.parameters():
+            p.requires_grad_(False)
+        self.norm = mprnn.config.normalizer
+        self.history: deque[torch.Tensor] = deque(maxlen=mprnn.min_history())
+        self.iterations = self.config.start_iterations
+        self.errors: deque[float] = deque(maxlen=self.config.error_memory)
+        self._predicted_next: torch.Tensor | None = None   # (2,) v predicted for this step
+        self._plan: torch.Tensor | None = None             # (N, 4) remaining plan
+        self._queued: list[np.ndarray] = []                # apply_all: plan to play out
+
+    def step(self, measurement: np.ndarray) -> ControlStep:
+        """Measurement (6,) -> angles for the next control period."""
+        started = time.perf_counter()
+        measurement = np.asarray(measurement, float)
+        current = measurement[2:6]
+        x = features(torch.as_tensor(measurement, dtype=torch.float32), self.norm)  # (10,)
+        self.history.append(x)
+        error = float('nan')
+        if self._predicted_next is not None:
+            error = float(torch.sqrt(((self._predicted_next - x[:2]) ** 2).mean()))
+            self.errors.append(error)
+            cfg = self.config
+            if error < cfg.accurate_error:
+                self.iterations = min(cfg.max_iterations, self.iterations + 1)
+            else:
+                self.iterations = max(cfg.min_iterations, self.iterations - 1)
+        surrogate, _ = self.estimator.update(measurement)
+        recent = float(np.mean(self.errors)) if self.errors else 0.0
+        full = len(self.history) == self.history.maxlen
+        if self._queued and recent <= self.config.error_threshold:
+            wanted = self._queued.pop(0)
+            return self._finish(current, wanted, 'outer', surrogate, error, np.array([]), 0,
+                                started, None)
+        if not full or recent > self.config.error_threshold:
+            self._plan, self._predicted_next, self._queued = None, None, []
+            with torch.no_grad():
+                wanted = self.kmap(torch.tensor([[surrogate]], dtype=torch.float32))[0]
+            return self._finish(current, wanted.numpy(), 'inner', surrogate, error,
+                                np.array([]), 0, started, None)
+        return self._plan_outer(current, surrogate, error, started)
+
+    def _plan_outer(self, current, surrogate, error, started) -> ControlStep:
+        history = torch.stack(list(self.history))[None]                 # (1, N + 2b, 10)
+        if self._plan is None:
+            with torch.no_grad():
+                seed = self.model(history).u[0]                         # (N, 4) from the map
+        else:
+            seed = torch.cat([self._plan[1:], self._plan[-1:]])         # shift the old plan
+        plan = seed.clone().requires_grad_(True)
+        optimizer = torch.optim.Adam([plan], lr=self.config.learning_rate)
+        for _ in range(self.iterations):
+            optimizer.zero_grad()
+            out = self.model(history, plan[None])
+            (-out.objective.sum()).backward()
+            optimizer.step()
+        plan = plan.detach()
+        # The first control is what the servos can reach; predict with exactly that.
+        plan[0] = torch.as_tensor(self.config.limits.apply(current, plan[0].numpy()),
+                                  dtype=plan.dtype)
+        with torch.no_grad():
+            out = self.model(history, plan[None])
+        self._plan = plan
+        if self.config.apply_all:
+            self._queued = [u.numpy() for u in plan[1:]]
+        return self._finish(current, plan[0].numpy(), 'outer', surrogate, error,
+                            out.objective[0].numpy(), self.iterations, started, out.v[0, 0])
+
+    def _finish(self, current, wanted, mode, surrogate, error, predicted, iterations, started,
+                predicted_next) -> ControlStep:
+        angles = self.config.limits.apply(current, wanted)
+        self._predicted_next = predicted_next
+        return ControlStep(angles=angles, mode=mode, surrogate=surrogate,
+                           prediction_error=error, predicted_objective=predicted,
+                           iterations=iterations,
+                           latency_ms=1e3 * (time.perf_counter() - started))

@@ -1,0 +1,46 @@
+"""Angle limits and servo speed: turning a wanted angle set into an applicable one."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class AngleLimits:
+    """Range of every angle [rad] and the largest change per control period [rad].
+
+    Every element is pi-periodic, so a wanted angle is replaced by its equivalent inside
+    ``[low, high]`` closest to the current angle (``[low, high]`` should span at least pi
+    for every setting to be reachable), and the servo never jumps: it moves toward that
+    goal by at most ``max_step`` per period.
+    """
+
+    low: float = -math.pi
+    high: float = math.pi
+    max_step: float = 0.25
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.low) and math.isfinite(self.high) and self.low < self.high):
+            raise ValueError(f'angle limits must be finite with low < high, got '
+                             f'[{self.low}, {self.high}]')
+        if not self.max_step > 0:
+            raise ValueError(f'max_step must be > 0 rad, got {self.max_step}')
+
+    def apply(self, current: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+        """The angles (4,) to command, from the current (4,) and the wanted (4,) ones.
+
+        The goal is the pi-equivalent of ``wanted`` inside ``[low, high]`` nearest to the
+        current angle; the servo moves toward it by at most ``max_step``.
+        """
+        current = np.clip(np.asarray(current, float), self.low, self.high)
+        shifts = math.pi * np.arange(-3, 4)[:, None]                  # (7, 1)
+        options = np.asarray(wanted, float)[None, :] + shifts         # (7, 4)
+        inside = (options >= self.low) & (options <= self.high)
+        distance = np.where(inside, np.abs(options - current), np.inf)
+        goal = options[np.argmin(distance, axis=0), np.arange(current.size)]
+        reachable = np.isfinite(distance.min(axis=0))
+        goal = np.where(reachable, goal, np.clip(wanted, self.low, self.high))
+        return current + np.clip(goal - current, -self.max_step, self.max_step)
