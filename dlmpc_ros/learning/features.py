@@ -9,6 +9,7 @@ data's statistics, which are stored with every model.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -17,6 +18,8 @@ import torch
 N_MEASURED = 6  # E, M, 4 angles
 N_FEATURES = 10  # E_n, logM_n, sin 2a (4), cos 2a (4)
 N_ANGLES = 4
+#: Largest kurtosis of n = 256 spectral values (n - 2 + 1/(n - 1)); a bound for predictions.
+MAX_KURTOSIS = 254.004
 
 
 @dataclass(frozen=True)
@@ -45,9 +48,11 @@ class Normalizer:
                             (torch.log(kurtosis) - self.logm_mean) / self.logm_std], dim=-1)
 
     def unstates(self, v: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """E and M (each (...)) from normalized states v (..., 2)."""
-        energy_norm = v[..., 0] * self.e_std + self.e_mean
-        kurtosis = torch.exp(v[..., 1] * self.logm_std + self.logm_mean)
+        """E and M (each (...)) from normalized states v (..., 2), within their physical
+        ranges (E >= 0; 1 <= M <= MAX_KURTOSIS)."""
+        energy_norm = (v[..., 0] * self.e_std + self.e_mean).clamp(min=0.0)
+        log_m = (v[..., 1] * self.logm_std + self.logm_mean).clamp(0.0, math.log(MAX_KURTOSIS))
+        kurtosis = torch.exp(log_m)
         return energy_norm, kurtosis
 
     def objective(self, v: torch.Tensor) -> torch.Tensor:

@@ -70,6 +70,9 @@ __all__ = ['MPRNNConfig', 'MPRNNCell', 'CellOutput', 'MPRNN', 'MPRNNOutput', 'Wi
            'load_mprnn']
 
 
+#: Bound on the normalized states fed back in a rollout (training data lies within +-5).
+FEEDBACK_BOUND = 6.0
+
 @dataclass(frozen=True)
 class MPRNNConfig:
     """Everything needed to rebuild an MP-RNN (stored in its model file)."""
@@ -231,6 +234,14 @@ class MPRNN(nn.Module):
     def kmap(self, value: KMap | None) -> None:
         self._kmap[0] = value
 
+    def __setattr__(self, name: str, value) -> None:
+        # nn.Module would register a module assigned to `kmap` as a submodule instead of
+        # calling the property setter.
+        if name == 'kmap':
+            self._kmap[0] = value
+            return
+        super().__setattr__(name, value)
+
     def min_history(self) -> int:
         """Rows of history :meth:`forward` needs: N + 2b."""
         return self.config.min_history()
@@ -303,7 +314,10 @@ class MPRNN(nn.Module):
             latent = out.latent
             u_feat = angle_features(out.u)                             # (B, 8)
             if feed_back:
-                rows.append(torch.cat([out.v, u_feat], dim=-1))        # (B, 10) predicted
+                # Fed back within a bounded range, so that one wild prediction cannot
+                # blow up the rest of the rollout (normalized states are O(1)).
+                v_back = out.v.clamp(-FEEDBACK_BOUND, FEEDBACK_BOUND)
+                rows.append(torch.cat([v_back, u_feat], dim=-1))      # (B, 10) predicted
             else:
                 rows.append(future_x[:, j])                            # (B, 10) true
             controls.append(u_feat)

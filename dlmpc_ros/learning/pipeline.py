@@ -7,6 +7,7 @@ and figures into the models directory.
 
 from __future__ import annotations
 
+import itertools
 import json
 import time
 from dataclasses import dataclass
@@ -95,10 +96,12 @@ def surrogate_of(vae: ConditionalVAE, measured: np.ndarray) -> np.ndarray:
 # -- estimator ------------------------------------------------------------------------------
 
 def train_vae_stage(paths: Paths, seed: int = 0, epochs: int = 25,
-                    window_choices: tuple[int, ...] = (1, 4), show_progress: bool = True,
-                    limit: int | None = None) -> dict:
-    """Train one VAE per window length, keep the one whose surrogate tracks K best on the
-    held-out trajectories (K is used for this measurement only), save it and Fig. 4."""
+                    window_choices: tuple[int, ...] = (1, 4),
+                    conditional_choices: tuple[bool, ...] = (True, False),
+                    show_progress: bool = True, limit: int | None = None) -> dict:
+    """Train one VAE per (decoder kind, window length); keep the one whose surrogate
+    tracks K best on the held-out trajectories (K is used for this measurement only, never
+    in training), save it and the paper's Fig. 4."""
     started = time.monotonic()
     traj = load_trajectories(paths.trajectories)
     sweep = shards.load_dataset(paths.sweep)
@@ -112,13 +115,14 @@ def train_vae_stage(paths: Paths, seed: int = 0, epochs: int = 25,
     norm = Normalizer.fit(train[..., 0], train[..., 1])
     fingerprint = fingerprint_arrays({'trajectories': measured, 'sweep': sweep_measured})
     candidates = []
-    for w in window_choices:
-        config = VAEConfig(window=w, normalizer=norm.to_dict())
+    for conditional, w in itertools.product(conditional_choices, window_choices):
+        config = VAEConfig(window=w, conditional=conditional, normalizer=norm.to_dict())
         torch.manual_seed(seed)
         model = ConditionalVAE(config)
         data = np.concatenate([windows(train, w), steady_windows(sweep_measured, w)])
-        history = fit(model, model.loss, data, epochs, seed=seed, desc=f'VAE window {w}',
-                      show_progress=show_progress)
+        kind = 'conditional' if conditional else 'plain'
+        history = fit(model, model.loss, data, epochs, seed=seed,
+                      desc=f'VAE {kind} window {w}', show_progress=show_progress)
         dim, scores = choose_surrogate(model, train)
         with torch.no_grad():
             mu, _ = model.encode(torch.as_tensor(windows(train, w)))
@@ -129,13 +133,14 @@ def train_vae_stage(paths: Paths, seed: int = 0, epochs: int = 25,
         k_aligned = k_test[:, w - 1:]
         per_lane = [abs(pearson(s, k)) for s, k in zip(s_test, k_aligned)]
         candidates.append({
-            'model': model, 'window': w, 'loss_history': history, 'surrogate_dim': dim,
+            'model': model, 'window': w, 'conditional': conditional, 'loss_history': history,
+            'surrogate_dim': dim,
             'abs_pearson_r_heldout': abs(pearson(s_test, k_aligned)),
             'abs_pearson_r_per_trajectory_min': float(min(per_lane)),
             'abs_pearson_r_per_trajectory_median': float(np.median(per_lane)), **scores})
     best = max(candidates, key=lambda c: c['abs_pearson_r_heldout'])
     metrics = {
-        'chosen_window': best['window'],
+        'chosen_window': best['window'], 'chosen_conditional': best['conditional'],
         'abs_pearson_r_heldout': best['abs_pearson_r_heldout'],
         'candidates': [{k: v for k, v in c.items() if k != 'model'} for c in candidates],
         'train_samples': int(sum(windows(train, best['window']).shape[0] for _ in [0])

@@ -18,8 +18,8 @@ from dlmpc_ros.learning.pipeline import (Paths, load_kmap, load_vae, measured_ar
 from dlmpc_ros.learning.trajectories import load_trajectories
 from dlmpc_ros.learning.vae import windows
 
-FULL = TrainConfig(crbm=CRBMTrainConfig(epochs=5), single_step_epochs=8, horizon_epochs=12,
-                   batch_size=256, lr=2e-3)
+FULL = TrainConfig(crbm=CRBMTrainConfig(epochs=5), single_step_epochs=10, horizon_epochs=20,
+                   batch_size=256, lr=1e-3)
 QUICK = TrainConfig(crbm=CRBMTrainConfig(epochs=1, max_samples=2000), single_step_epochs=1,
                     horizon_epochs=1, batch_size=64)
 
@@ -33,7 +33,7 @@ def surrogate_series(vae, measured: np.ndarray) -> np.ndarray:
 
 
 def train_mprnn_stage(paths: Paths, seed: int = 0, quick: bool = False,
-                      show_progress: bool = True, stride: int = 2) -> dict:
+                      show_progress: bool = True, stride: int = 1) -> dict:
     """Train the MP-RNN on the training trajectories; measure on held-out ones.
 
     Held-out lanes are split in two: the first half chooses between the models after

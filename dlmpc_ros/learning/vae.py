@@ -1,10 +1,13 @@
-"""The birefringence estimator: a conditional variational autoencoder (paper section 3B).
+"""The birefringence estimator: a variational autoencoder (paper section 3B).
 
 Unsupervised: it never sees K. The encoder reads a window of ``w`` recent measurements
 ``(E, M, alpha)`` (as :func:`features`) and returns a Gaussian posterior over a small
-latent z; the decoder reconstructs the window's ``(E_n, logM_n)`` from z *and the
-angles*. Because the angles are given to the decoder, z only has to carry what the
-angles do not explain about the laser's response, and that is mainly the birefringence.
+latent z. Two decoders are offered:
+
+- conditional: the decoder reconstructs the window's ``(E_n, logM_n)`` from z *and the
+  angles*, so z only has to carry what the angles leave unexplained;
+- plain (the paper's): the decoder reconstructs every feature, angles included, from z.
+
 One latent coordinate is chosen as the K surrogate by a rule that uses no labels: the
 smoothest one over time on the training trajectories (smallest mean squared step
 relative to its variance), among coordinates the model actually uses. The surrogate is
@@ -28,6 +31,9 @@ class VAEConfig:
 
     window: int = 1
     latent: int = 2
+    conditional: bool = True
+    """True: the decoder gets the angles and reconstructs (E, M); False (the paper's
+    plain VAE): it reconstructs every feature, angles included, from z alone."""
     hidden: int = 64
     beta: float = 0.1
     normalizer: dict = field(default_factory=lambda: Normalizer().to_dict())
@@ -49,8 +55,10 @@ class ConditionalVAE(nn.Module):
         w, h, z = config.window, config.hidden, config.latent
         self.encoder = nn.Sequential(nn.Linear(w * N_FEATURES, h), nn.ReLU(), nn.Linear(h, h),
                                      nn.ReLU(), nn.Linear(h, 2 * z))
-        self.decoder = nn.Sequential(nn.Linear(z + w * 8, h), nn.ReLU(), nn.Linear(h, h),
-                                     nn.ReLU(), nn.Linear(h, w * 2))
+        n_in = z + w * 8 if config.conditional else z
+        n_out = w * 2 if config.conditional else w * N_FEATURES
+        self.decoder = nn.Sequential(nn.Linear(n_in, h), nn.ReLU(), nn.Linear(h, h),
+                                     nn.ReLU(), nn.Linear(h, n_out))
 
     def encode(self, measured: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Posterior mean and log-variance (B, latent) of measurements (B, w, 6)."""
@@ -59,7 +67,10 @@ class ConditionalVAE(nn.Module):
         return mu, logvar.clamp(-12.0, 8.0)
 
     def decode(self, z: torch.Tensor, measured: torch.Tensor) -> torch.Tensor:
-        """Reconstructed normalized states (B, w, 2) from z and the window's angles."""
+        """Reconstruction (B, w, 2) of the normalized states from z and the window's angles
+        (conditional), or (B, w, 10) of all features from z alone (plain)."""
+        if not self.config.conditional:
+            return self.decoder(z).view(-1, self.config.window, N_FEATURES)
         angles = angle_features(measured[..., 2:6]).flatten(1)  # (B, w * 8)
         return self.decoder(torch.cat([z, angles], dim=-1)).view(-1, self.config.window, 2)
 
@@ -69,7 +80,8 @@ class ConditionalVAE(nn.Module):
         mu, logvar = self.encode(measured)
         eps = torch.randn(mu.shape, generator=generator)
         z = mu + torch.exp(0.5 * logvar) * eps
-        target = self.norm.states(measured[..., 0], measured[..., 1])  # (B, w, 2)
+        target = (self.norm.states(measured[..., 0], measured[..., 1])  # (B, w, 2)
+                  if self.config.conditional else features(measured, self.norm))
         recon = ((self.decode(z, measured) - target) ** 2).sum(dim=(1, 2)).mean()
         kl = (-0.5 * (1 + logvar - mu ** 2 - logvar.exp())).sum(dim=1).mean()
         return recon + self.config.beta * kl, {'recon': float(recon.detach()),

@@ -284,3 +284,14 @@ def test_save_load_round_trip_and_bad_files(trained, tmp_path):
                             model.config.to_dict(), {}, 'f')
     with pytest.raises(ModelFileError, match='valid MP-RNN'):
         load_mprnn(wrong)
+
+
+def test_assigning_kmap_sets_it_without_registering_it():
+    from dlmpc_ros.learning.kmap import KMap, KMapConfig
+    from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
+
+    model = MPRNN(MPRNNConfig(window=2, horizon=3, n_hidden=8, n_latent=4))
+    keys = set(model.state_dict())
+    kmap = KMap(KMapConfig(hidden=8))
+    model.kmap = kmap
+    assert model.kmap is kmap and set(model.state_dict()) == keys

@@ -1,0 +1,84 @@
+"""DL-MPC controller logic on small untrained models (the logic, not the performance)."""
+
+import inspect
+
+import numpy as np
+import pytest
+import torch
+
+from dlmpc_ros.control.dlmpc import DLMPCConfig, DLMPCController
+from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.learning.kmap import KMap, KMapConfig
+from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
+from dlmpc_ros.learning.vae import ConditionalVAE, VAEConfig
+
+
+def _controller(**config) -> DLMPCController:
+    torch.manual_seed(0)
+    vae = ConditionalVAE(VAEConfig(window=2, hidden=16))
+    kmap = KMap(KMapConfig(hidden=16))
+    mprnn = MPRNN(MPRNNConfig(window=2, horizon=4, n_hidden=16, n_latent=8))
+    return DLMPCController(vae, kmap, mprnn, DLMPCConfig(**config))
+
+
+def _measurement(rng, angles):
+    return np.r_[3.0 + 0.1 * rng.standard_normal(), 30.0 * np.exp(0.05 * rng.standard_normal()),
+                 angles]
+
+
+def test_inner_loop_until_history_is_long_enough_then_outer_loop():
+    ctrl = _controller(error_threshold=1e6)
+    rng = np.random.default_rng(0)
+    angles = np.zeros(4)
+    modes = []
+    for _ in range(ctrl.model.min_history() + 3):
+        step = ctrl.step(_measurement(rng, angles))
+        modes.append(step.mode)
+        angles = step.angles
+    need = ctrl.model.min_history()
+    assert modes[:need - 1] == ['inner'] * (need - 1)
+    assert set(modes[need - 1:]) == {'outer'}
+    assert step.predicted_objective.shape == (4,) and step.iterations >= 1
+    assert np.isfinite(step.prediction_error) and step.latency_ms > 0
+
+
+def test_large_prediction_error_hands_control_to_the_inner_loop():
+    ctrl = _controller(error_threshold=1e-6)
+    rng = np.random.default_rng(1)
+    angles = np.zeros(4)
+    modes = []
+    for _ in range(ctrl.model.min_history() + 4):
+        step = ctrl.step(_measurement(rng, angles))
+        modes.append(step.mode)
+        angles = step.angles
+    need = ctrl.model.min_history()
+    assert modes[need - 1] == 'outer'  # first plan: no prediction to check yet
+    assert modes[need:] == ['inner'] * (len(modes) - need)
+
+
+def test_commands_respect_angle_limits_and_step():
+    limits = AngleLimits(-0.5, 1.0, 0.05)
+    ctrl = _controller(limits=limits, error_threshold=1e6, learning_rate=0.5)
+    rng = np.random.default_rng(2)
+    angles = np.array([0.9, -0.45, 0.0, 0.3])
+    for _ in range(ctrl.model.min_history() + 6):
+        step = ctrl.step(_measurement(rng, angles))
+        assert (step.angles >= -0.5).all() and (step.angles <= 1.0).all()
+        assert np.abs(step.angles - angles).max() <= 0.05 + 1e-9
+        angles = step.angles
+
+
+def test_controller_never_receives_the_true_birefringence():
+    params = inspect.signature(DLMPCController.step).parameters
+    assert list(params) == ['self', 'measurement']
+    import dlmpc_ros.control.dlmpc as module
+    source = inspect.getsource(module)
+    assert 'sim_truth' not in source and 'birefringence' not in source.replace(
+        'birefringence estimator', '')
+
+
+@pytest.mark.parametrize('bad', [{'min_iterations': 0}, {'learning_rate': 0.0},
+                                 {'start_iterations': 9, 'max_iterations': 8}])
+def test_bad_controller_settings_are_rejected(bad):
+    with pytest.raises(ValueError):
+        DLMPCConfig(**bad)
