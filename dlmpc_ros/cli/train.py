@@ -41,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
             metrics = train_kmap_stage(paths, args.seed, steps=200 if args.quick else 3000,
                                        show_progress=show)
             write_metrics(paths, 'kmap', metrics)
-            print(f"kmap: O/O* = {metrics['oracle_ratio_from_oracle_state']:.3f}", flush=True)
+            print(f"kmap: O/O* = {metrics['oracle_ratio_test_k']:.3f} (test K)", flush=True)
         if args.stage in ('all', 'mprnn'):
             from dlmpc_ros.learning.pipeline_mprnn import train_mprnn_stage
             metrics = train_mprnn_stage(paths, args.seed, quick=args.quick, show_progress=show)

@@ -109,5 +109,5 @@ def train_kmap(centres: np.ndarray, targets: np.ndarray, config: KMapConfig, see
         loss = 0.5 * ((model.features(s) - y) ** 2).sum(dim=-1).mean()
         loss.backward()
         optimizer.step()
-        losses.append(float(loss))
+        losses.append(float(loss.detach()))
     return model, losses

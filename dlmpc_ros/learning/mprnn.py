@@ -86,6 +86,9 @@ class MPRNNConfig:
     n_latent: int = 32
     """N_l: size of the recurrent latent l."""
     n_k: int = 1
+    residual: bool = True
+    """Predict v_{tau+1} as v_tau plus the output layer (a skip connection, so that
+    persistence is the starting point); False is the appendix's plain output layer."""
     """N_K: outputs of the K head (the surrogate's dimension)."""
     norm: dict[str, float] = field(default_factory=lambda: Normalizer().to_dict())
     """Normalizer of E and log M, as :meth:`Normalizer.to_dict`."""
@@ -149,6 +152,7 @@ class MPRNNCell(nn.Module):
         self.lat = nn.Linear(nl, nh)           # W_l:     l -> h_lat
         self.ko = nn.Linear(nh, config.n_k)    # W_Ko:    h_lat -> K_{tau+1}
         self.out = nn.Linear(nh, N_STATES)     # W_o:     h_lat * h_cur * h_fut -> v_{tau+1}
+        self.residual = config.residual
 
     def forward(self, x_past: torch.Tensor, x_cur: torch.Tensor, u_known: torch.Tensor,
                 latent: torch.Tensor, u_next: torch.Tensor | None = None,
@@ -183,6 +187,8 @@ class MPRNNCell(nn.Module):
         u_window = torch.cat([u_known, angle_features(u_next)[:, None]], dim=1)  # (B, b, 8)
         h_fut = relu(self.fut(u_window.flatten(1)))                    # (B, N_h)
         v = self.out(h_lat * h_cur * h_fut)                            # (B, 2)
+        if self.residual:
+            v = v + x_cur[:, -1, :N_STATES]                            # skip from v_tau
         return CellOutput(v=v, k=k, u=u_next, latent=latent)
 
 
