@@ -86,9 +86,11 @@ class MPRNNConfig:
     n_latent: int = 32
     """N_l: size of the recurrent latent l."""
     n_k: int = 1
-    residual: bool = True
-    """Predict v_{tau+1} as v_tau plus the output layer (a skip connection, so that
-    persistence is the starting point); False is the appendix's plain output layer."""
+    residual: bool = False
+    """True: predict v_{tau+1} as v_tau plus the output layer (a skip connection that
+    starts from persistence). False (default): the appendix's plain output layer, which
+    measured better on the held-out trajectories (O error at horizon 10: 0.97 against
+    1.05 of persistence)."""
     """N_K: outputs of the K head (the surrogate's dimension)."""
     norm: dict[str, float] = field(default_factory=lambda: Normalizer().to_dict())
     """Normalizer of E and log M, as :meth:`Normalizer.to_dict`."""

@@ -26,15 +26,21 @@ def _measurement(rng, angles):
                  angles]
 
 
-def test_inner_loop_until_history_is_long_enough_then_outer_loop():
-    ctrl = _controller(error_threshold=1e6)
-    rng = np.random.default_rng(0)
+def _run(ctrl: DLMPCController, periods: int, seed: int):
+    """Drive the controller with noisy measurements at its own angles; (modes, last step)."""
+    rng = np.random.default_rng(seed)
     angles = np.zeros(4)
     modes = []
-    for _ in range(ctrl.model.min_history() + 3):
+    for _ in range(periods):
         step = ctrl.step(_measurement(rng, angles))
         modes.append(step.mode)
         angles = step.angles
+    return modes, step
+
+
+def test_inner_loop_until_history_is_long_enough_then_outer_loop():
+    ctrl = _controller(error_threshold=1e6)
+    modes, step = _run(ctrl, ctrl.model.min_history() + 3, seed=0)
     need = ctrl.model.min_history()
     assert modes[:need - 1] == ['inner'] * (need - 1)
     assert set(modes[need - 1:]) == {'outer'}
@@ -44,13 +50,7 @@ def test_inner_loop_until_history_is_long_enough_then_outer_loop():
 
 def test_large_prediction_error_hands_control_to_the_inner_loop():
     ctrl = _controller(error_threshold=1e-6)
-    rng = np.random.default_rng(1)
-    angles = np.zeros(4)
-    modes = []
-    for _ in range(ctrl.model.min_history() + 4):
-        step = ctrl.step(_measurement(rng, angles))
-        modes.append(step.mode)
-        angles = step.angles
+    modes, _ = _run(ctrl, ctrl.model.min_history() + 4, seed=1)
     need = ctrl.model.min_history()
     assert modes[need - 1] == 'outer'  # first plan: no prediction to check yet
     assert modes[need:] == ['inner'] * (len(modes) - need)
