@@ -8,7 +8,8 @@ from pathlib import Path
 from dlmpc_ros.learning.pipeline import Paths
 
 TARGETS = {
-    'vae': ('abs_pearson_r_heldout', '>= 0.95', '|Pearson r| of surrogate vs true K, held-out'),
+    'vae': ('abs_pearson_r_heldout', '>= 0.95',
+            'absolute Pearson r of surrogate vs true K, held-out'),
     'kmap': ('oracle_ratio_test_k', '>= 0.90',
              'steady O at the map\'s angles / O*(K), mean over the 30 test K'),
 }
