@@ -451,6 +451,9 @@ class TrainConfig:
     k_weight: float = 0.1
     """Weight of the K head's squared error against the surrogate."""
     encoder_weight: float = 0.5
+    objective_weight: float = 0.0
+    """Weight of the squared error of the objective O = E/M (physical units) over the
+    horizon; O is what the controller maximizes."""
     """Weight of the encoder cells' one-step errors (v and K)."""
     clip_norm: float = 1.0
     """Gradient-norm clip per step (0: none)."""
@@ -469,7 +472,8 @@ class TrainConfig:
 
 
 def mprnn_loss(out: MPRNNOutput, batch: WindowBatch, k_weight: float = 0.1,
-               encoder_weight: float = 0.5) -> torch.Tensor:
+               encoder_weight: float = 0.5, objective_weight: float = 0.0,
+               norm: Normalizer | None = None) -> torch.Tensor:
     """Sum-squared error over the horizon, averaged over the batch.
 
     ``sum_j |v_{t+j} - v^_{t+j}|^2 + k_weight sum_j (s_{t+j} - K^_{t+j})^2``, plus
@@ -483,7 +487,11 @@ def mprnn_loss(out: MPRNNOutput, batch: WindowBatch, k_weight: float = 0.1,
     dec = dec + k_weight * ((out.k[..., 0] - batch.future_s) ** 2).sum(1)
     enc = ((out.v_enc - v_known) ** 2).sum((1, 2))
     enc = enc + k_weight * ((out.k_enc[..., 0] - batch.past_s) ** 2).sum(1)
-    return (dec + encoder_weight * enc).mean()
+    total = dec + encoder_weight * enc
+    if objective_weight and norm is not None:
+        o_true = norm.objective(v_true)                                 # (B, N)
+        total = total + objective_weight * ((out.objective - o_true) ** 2).sum(1)
+    return total.mean()
 
 
 def _train_stage(model: MPRNN, data: WindowDataset, config: TrainConfig, epochs: int,
@@ -502,7 +510,8 @@ def _train_stage(model: MPRNN, data: WindowDataset, config: TrainConfig, epochs:
             batch = data.batch(order[start:start + config.batch_size])
             out = model(batch.history, batch.future_u, feed_back=feed_back,
                         future_x=batch.future_x)
-            loss = mprnn_loss(out, batch, config.k_weight, config.encoder_weight)
+            loss = mprnn_loss(out, batch, config.k_weight, config.encoder_weight,
+                              config.objective_weight, model.norm)
             opt.zero_grad()
             loss.backward()
             if config.clip_norm > 0:

@@ -98,7 +98,7 @@ def surrogate_of(vae: ConditionalVAE, measured: np.ndarray) -> np.ndarray:
 def train_vae_stage(paths: Paths, seed: int = 0, epochs: int = 25,
                     window_choices: tuple[int, ...] = (1, 4),
                     conditional_choices: tuple[bool, ...] = (True, False),
-                    show_progress: bool = True, limit: int | None = None) -> dict:
+                    show_progress: bool = True) -> dict:
     """Train one VAE per (decoder kind, window length); keep the one whose surrogate
     tracks K best on the held-out trajectories (K is used for this measurement only, never
     in training), save it and the paper's Fig. 4."""
@@ -110,8 +110,6 @@ def train_vae_stage(paths: Paths, seed: int = 0, epochs: int = 25,
     k_test = traj['K'][traj['held_out']]
     steady = sweep['converged'] & sweep['finite']
     sweep_measured = measured_array(sweep)[steady]
-    if limit is not None:  # small runs for tests
-        train, sweep_measured = train[:, :limit], sweep_measured[:limit * 4]
     norm = Normalizer.fit(train[..., 0], train[..., 1])
     fingerprint = fingerprint_arrays({'trajectories': measured, 'sweep': sweep_measured})
     candidates = []
@@ -143,7 +141,7 @@ def train_vae_stage(paths: Paths, seed: int = 0, epochs: int = 25,
         'chosen_window': best['window'], 'chosen_conditional': best['conditional'],
         'abs_pearson_r_heldout': best['abs_pearson_r_heldout'],
         'candidates': [{k: v for k, v in c.items() if k != 'model'} for c in candidates],
-        'train_samples': int(sum(windows(train, best['window']).shape[0] for _ in [0])
+        'train_samples': int(windows(train, best['window']).shape[0]
                              + sweep_measured.shape[0]),
         'wall_seconds': round(time.monotonic() - started, 1), 'seed': seed,
     }

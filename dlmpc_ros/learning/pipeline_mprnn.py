@@ -19,7 +19,7 @@ from dlmpc_ros.learning.trajectories import load_trajectories
 from dlmpc_ros.learning.vae import windows
 
 FULL = TrainConfig(crbm=CRBMTrainConfig(epochs=5), single_step_epochs=10, horizon_epochs=20,
-                   batch_size=256, lr=1e-3)
+                   batch_size=256, lr=1e-3, objective_weight=400.0)
 QUICK = TrainConfig(crbm=CRBMTrainConfig(epochs=1, max_samples=2000), single_step_epochs=1,
                     horizon_epochs=1, batch_size=64)
 

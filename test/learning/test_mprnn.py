@@ -295,3 +295,18 @@ def test_assigning_kmap_sets_it_without_registering_it():
     kmap = KMap(KMapConfig(hidden=8))
     model.kmap = kmap
     assert model.kmap is kmap and set(model.state_dict()) == keys
+
+
+def test_objective_term_adds_the_squared_error_of_o():
+    from dlmpc_ros.learning.mprnn import WindowBatch
+
+    model = MPRNN(CFG)
+    history, future_u, future_x = random_inputs()
+    out = model(history, future_u)
+    batch = WindowBatch(history=history, future_x=future_x, future_u=future_u,
+                        future_s=torch.zeros(3, N), past_s=torch.zeros(3, N))
+    base = mprnn_loss(out, batch)
+    norm = CFG.normalizer
+    expected = ((out.objective - norm.objective(future_x[..., :2])) ** 2).sum(1).mean()
+    with_o = mprnn_loss(out, batch, objective_weight=7.0, norm=norm)
+    assert torch.isclose(with_o - base, 7.0 * expected, rtol=1e-4)
