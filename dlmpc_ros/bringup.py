@@ -10,14 +10,11 @@ stop cleanly, 2 for bad arguments or a graph that never connected.
 from __future__ import annotations
 
 import argparse
-import csv
-import math
 import os
 import sys
 import time
 from pathlib import Path
 
-from dlmpc_ros import interfaces as itf
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.drift import SCENARIOS, make_scenario, parse_settings
 from dlmpc_ros.graph import NodeGraph, NodeProcess
@@ -138,16 +135,6 @@ def main(argv: list[str] | None = None) -> int:
         plot_run_csv(args.csv, args.plot)
         print(f'bringup: plot written to {args.plot}')
     return code
-
-
-def write_header(writer: csv.writer) -> None:
-    writer.writerow([*itf.STATE_FIELDS, 'K'])
-
-
-def status_line(state: list[float], k: float, rate: float) -> str:
-    k_text = f'{k:+.4f}' if math.isfinite(k) else '   n/a'
-    return (f'round trip {int(state[0]):>9d}  O {state[3]:.4f}  E {state[1]:.3f}  '
-            f'M {state[2]:7.2f}  K {k_text}  {rate:6.0f} RT/s')
 
 
 if __name__ == '__main__':

@@ -55,10 +55,15 @@ def finish_metadata(directory: Path, extra: dict[str, Any]) -> dict[str, Any]:
     return meta
 
 
+def shard_paths(directory: Path) -> list[Path]:
+    """The complete shard files of a dataset, in order (no half-written ``.tmp`` files)."""
+    return sorted(p for p in Path(directory).glob('shard_*.npz')
+                  if not p.name.endswith('.tmp.npz'))
+
+
 def load_dataset(directory: Path) -> dict[str, np.ndarray]:
     """Concatenate every shard of a dataset along the first axis."""
-    paths = sorted(Path(directory).glob('shard_*.npz'))
-    paths = [p for p in paths if not p.name.endswith('.tmp.npz')]
+    paths = shard_paths(directory)
     if not paths:
         raise FileNotFoundError(f'no dataset shards in {directory}; run `dlmpc-data` first')
     parts: dict[str, list[np.ndarray]] = {}

@@ -13,15 +13,21 @@ angle sets that reached the highest objective.
 from __future__ import annotations
 
 import math
+import sys
+import time
 import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
+from pathlib import Path
+
 import numpy as np
 from scipy.stats import qmc
+from tqdm import tqdm
 
 from dlmpc_ros.core.cavity import Cavity
 from dlmpc_ros.core.config import BIREFRINGENCE_RANGE, CavityConfig
+from dlmpc_ros.learning import shards
 
 FIELDS = ('chain', 'K', 'alpha', 'E', 'M', 'O', 'energy', 'peak', 'pulses', 'converged',
           'finite', 'round_trips')
@@ -170,14 +176,6 @@ def best_angle_sets(data: dict[str, np.ndarray], count: int) -> np.ndarray:
 def generate_sweep(directory, cfg: SweepConfig, cavity_cfg: CavityConfig,
                    show_progress: bool = True) -> dict:
     """Run (or resume) the sweep into ``directory``; returns the dataset's metadata."""
-    import sys
-    import time
-    from pathlib import Path
-
-    from tqdm import tqdm
-
-    from dlmpc_ros.learning import shards
-
     directory = Path(directory)
     shards.check_metadata(directory, {'sweep': cfg.to_dict(), 'cavity': cavity_cfg.to_dict()})
     started = time.monotonic()
@@ -196,8 +194,7 @@ def generate_sweep(directory, cfg: SweepConfig, cavity_cfg: CavityConfig,
 
     def run_phase(angle_sets: np.ndarray, first_id: int) -> None:
         ids = first_id + np.arange(angle_sets.shape[0])
-        todo = np.array([shards.shard_path(directory, i // per).exists() is False
-                         for i in ids])
+        todo = np.array([not shards.shard_path(directory, i // per).exists() for i in ids])
         pending: dict[int, dict[int, dict]] = {}
 
         def on_chain(chain: int, samples: dict) -> None:

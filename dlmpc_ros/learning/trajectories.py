@@ -154,7 +154,7 @@ def generate_trajectories(directory: Path, envelope: dict[str, np.ndarray],
 def load_trajectories(directory: Path) -> dict[str, np.ndarray]:
     """Trajectories as (lanes, periods[, 4]) arrays plus ``held_out`` (lanes,) booleans."""
     directory = Path(directory)
-    paths = sorted(p for p in directory.glob('shard_*.npz') if not p.name.endswith('.tmp.npz'))
+    paths = shards.shard_paths(directory)
     if not paths:
         raise FileNotFoundError(f'no trajectories in {directory}; run `dlmpc-data trajectories`')
     parts: dict[str, list] = {}

@@ -80,10 +80,20 @@ class MonitorNode(Node):
             self._truth = {r: k for r, k in self._truth.items() if r >= oldest}
 
 
+def write_header(writer) -> None:
+    """CSV header: the state fields and the true K."""
+    writer.writerow([*itf.STATE_FIELDS, 'K'])
+
+
+def status_line(state: list[float], k: float, rate: float) -> str:
+    """One-line live status of the run."""
+    k_text = f'{k:+.4f}' if math.isfinite(k) else '   n/a'
+    return (f'round trip {int(state[0]):>9d}  O {state[3]:.4f}  E {state[1]:.3f}  '
+            f'M {state[2]:7.2f}  K {k_text}  {rate:6.0f} RT/s')
+
+
 def run_monitor(args: argparse.Namespace, graph: NodeGraph) -> int:
     """Spin the monitor until the run ends; returns the bringup's exit code so far."""
-    from dlmpc_ros.bringup import status_line, write_header
-
     requested = stop_on_signals()
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     csv_file = None
