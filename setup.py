@@ -36,10 +36,14 @@ setup(
         'console_scripts': [
             f'laser_sim = {PACKAGE}.nodes.laser_sim_node:main',
             f'drift_injector = {PACKAGE}.nodes.drift_injector_node:main',
+            f'vae_estimator = {PACKAGE}.nodes.vae_estimator_node:main',
+            f'mpc_controller = {PACKAGE}.nodes.mpc_controller_node:main',
+            f'baseline_controller = {PACKAGE}.nodes.baseline_controller_node:main',
             f'bringup = {PACKAGE}.bringup:main',
             f'dlmpc-sim = {PACKAGE}.cli.sim:main',
             f'dlmpc-data = {PACKAGE}.cli.data:main',
             f'dlmpc-train = {PACKAGE}.cli.train:main',
+            f'dlmpc-evaluate = {PACKAGE}.cli.evaluate:main',
         ],
     },
 )

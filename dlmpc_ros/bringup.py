@@ -1,10 +1,12 @@
 """bringup: start the dlmpc_ros node graph without ROS launch, watch it, stop it cleanly.
 
-Starts each node as its own process with its parameter file from ``config/``, waits
-until the graph is connected (state and K messages arrive), prints a live status line,
-optionally writes every round trip to a CSV and plots it, and stops after
-``--round-trips`` or Ctrl-C. Exit code: 0 on a clean run, 1 if a node died or did not
-stop cleanly, 2 for bad arguments or a graph that never connected.
+Starts each node as its own process with its parameter file from ``config/``: the laser
+simulator, the drift injector and the controller chosen by ``--controller`` (``dlmpc``
+adds the VAE estimator). Waits until the graph is connected (state and K messages
+arrive), prints a live status line, optionally writes every round trip (and every
+control decision) to CSV and plots it, and stops after ``--round-trips`` or Ctrl-C.
+Exit code: 0 on a clean run, 1 if a node died or did not stop cleanly, 2 for bad
+arguments or a graph that never connected.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.drift import SCENARIOS, make_scenario, parse_settings
 from dlmpc_ros.graph import NodeGraph, NodeProcess
@@ -24,15 +28,44 @@ from dlmpc_ros.paths import config_file
 NODES = {
     'laser_sim': ('dlmpc_ros.nodes.laser_sim_node', 'laser_sim.yaml'),
     'drift_injector': ('dlmpc_ros.nodes.drift_injector_node', 'drift_injector.yaml'),
+    'vae_estimator': ('dlmpc_ros.nodes.vae_estimator_node', 'vae_estimator.yaml'),
+    'mpc_controller': ('dlmpc_ros.nodes.mpc_controller_node', 'mpc_controller.yaml'),
+    'baseline_controller': ('dlmpc_ros.nodes.baseline_controller_node',
+                            'baseline_controller.yaml'),
 }
+CONTROLLER_CHOICES = ('dlmpc', 'esc', 'passive', 'fixed_best', 'oracle', 'none')
+#: Nodes that subscribe /laser/state (the simulator holds round trip 1 until they do).
+STATE_READERS = ('drift_injector', 'vae_estimator', 'mpc_controller', 'baseline_controller')
 DEFAULT_DOMAIN_ID = 87
+
+
+def controller_nodes(controller: str) -> list[str]:
+    """Nodes that make up ``--controller``."""
+    if controller == 'none':
+        return []
+    if controller == 'dlmpc':
+        return ['vae_estimator', 'mpc_controller']
+    return ['baseline_controller']
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog='bringup', description=__doc__.split('\n\n')[0])
+    p.add_argument('--controller', default='dlmpc', choices=CONTROLLER_CHOICES,
+                   help='controller to run (default: %(default)s; oracle reads the true K '
+                        'and is for evaluation only; none: open loop)')
     p.add_argument('--nodes', default='laser_sim,drift_injector',
-                   help='comma-separated nodes to start (default: %(default)s); leave out '
-                        'laser_sim to run against a hardware driver')
+                   help='comma-separated simulator-side nodes to start (default: '
+                        '%(default)s); leave out laser_sim to run against a hardware driver')
+    p.add_argument('--period', type=int, default=10,
+                   help='control period P in round trips (default: %(default)s)')
+    p.add_argument('--lockstep', action='store_true',
+                   help='the simulator waits for each command and K (reproducible runs)')
+    p.add_argument('--initial-angles', metavar='A1,A2,A3,AP',
+                   help='initial angles of the simulated laser [rad]')
+    p.add_argument('--models-dir', type=Path,
+                   help='model files for the controller (default: the installed models/)')
+    p.add_argument('--controller-param', action='append', default=[], metavar='KEY=VALUE',
+                   help='controller node parameter override, repeatable (e.g. apply_all=true)')
     p.add_argument('--scenario', default='sinusoidal', choices=SCENARIOS,
                    help='birefringence drift scenario (default: %(default)s)')
     p.add_argument('--scenario-param', action='append', default=[], metavar='KEY=VALUE',
@@ -57,6 +90,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help='seconds a node gets to exit after SIGINT (default: %(default)s)')
     args = p.parse_args(argv)
     args.nodes = [n.strip() for n in args.nodes.split(',') if n.strip()]
+    args.nodes += [n for n in controller_nodes(args.controller) if n not in args.nodes]
     unknown = [n for n in args.nodes if n not in NODES]
     if unknown:
         p.error(f'unknown node(s) {unknown}; known: {sorted(NODES)}')
@@ -68,10 +102,17 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             args.scenario_settings['path'] = str(Path(args.scenario_settings['path']).resolve())
         make_scenario(args.scenario, **args.scenario_settings)  # fail here, not in a node
         args.laser_overrides = dict(_laser_override(item) for item in args.laser_param)
+        args.controller_overrides = dict(_laser_override(item)
+                                         for item in args.controller_param)
+        if args.initial_angles is not None:
+            angles = [float(x) for x in args.initial_angles.split(',')]
+            if len(angles) != 4 or not np.isfinite(angles).all():
+                raise ValueError('--initial-angles needs 4 finite numbers')
+            args.laser_overrides['initial_angles'] = angles
     except ValueError as err:
         p.error(str(err))
-    if args.rate < 0 or args.round_trips < 0:
-        p.error('--rate and --round-trips must be >= 0')
+    if args.rate < 0 or args.round_trips < 0 or args.period < 1:
+        p.error('--rate and --round-trips must be >= 0, --period >= 1')
     return args
 
 
@@ -79,10 +120,12 @@ def _laser_override(item: str) -> tuple[str, object]:
     """``KEY=VALUE`` to a typed laser_sim parameter (floats stay floats: ``pump=2``)."""
     key, sep, text = item.partition('=')
     if not sep:
-        raise ValueError(f'bad --laser-param {item!r}: use KEY=VALUE')
+        raise ValueError(f'bad parameter {item!r}: use KEY=VALUE')
     default = CavityConfig().to_dict().get(key)
     if isinstance(default, float):
         return key, float(text)
+    if text.lower() in ('true', 'false'):
+        return key, text.lower() == 'true'
     for kind in (int, float):
         try:
             return key, kind(text)
@@ -93,20 +136,34 @@ def _laser_override(item: str) -> tuple[str, object]:
 
 def build_graph(args: argparse.Namespace, env: dict[str, str], log_dir: Path) -> NodeGraph:
     nodes = []
+    scenario = make_scenario(args.scenario, **args.scenario_settings)
+    controlled = args.controller != 'none'
     for name in args.nodes:
         module, params = NODES[name]
         overrides: dict[str, object] = {}
         if name == 'laser_sim':
-            # Hold round trip 1 until the monitor (and the drift injector) listen, and
+            # Hold round trip 1 until the monitor and every state reader listen, and
             # start from the scenario's K of round trip 1.
+            readers = 1 + sum(n in args.nodes for n in STATE_READERS)
             overrides = {'round_trips_per_second': float(args.rate),
-                         'wait_for_subscribers': 1 + ('drift_injector' in args.nodes),
-                         **args.laser_overrides}
+                         'wait_for_subscribers': readers, **args.laser_overrides}
+            if args.lockstep:
+                overrides['lockstep_period'] = args.period if controlled else 0
+                overrides['lockstep_birefringence'] = 'drift_injector' in args.nodes
             if 'drift_injector' in args.nodes:
-                scenario = make_scenario(args.scenario, **args.scenario_settings)
                 overrides.setdefault('initial_birefringence', float(scenario(1)))
         elif name == 'drift_injector':
             overrides = {'scenario': args.scenario, **args.scenario_settings}
+        elif name in ('vae_estimator', 'mpc_controller', 'baseline_controller'):
+            overrides = {'period': args.period}
+            if args.models_dir is not None:
+                overrides['models_dir'] = str(args.models_dir.resolve())
+            if name != 'vae_estimator':
+                overrides.update(args.controller_overrides)
+            if name == 'baseline_controller':
+                # passive: the setting a person tuned for the initial K, then left alone
+                overrides.update(controller=args.controller,
+                                 initial_birefringence=float(scenario(1)))
         nodes.append(NodeProcess(name, module, config_file(params), overrides))
     return NodeGraph(nodes, env, log_dir)
 
@@ -118,7 +175,8 @@ def main(argv: list[str] | None = None) -> int:
     log_dir = args.log_dir or Path.home() / '.ros' / 'log' / 'dlmpc_ros' / time.strftime(
         '%Y%m%d-%H%M%S')
     graph = build_graph(args, dict(os.environ), log_dir)
-    print(f'bringup: domain {args.domain_id}, discovery {args.discovery}, nodes '
+    print(f'bringup: domain {args.domain_id}, discovery {args.discovery}, controller '
+          f'{args.controller}{" (lockstep)" if args.lockstep else ""}, nodes '
           f'{", ".join(args.nodes)}, logs in {log_dir}', flush=True)
     from dlmpc_ros.ros.monitor import run_monitor  # rclpy only from here on
     graph.start()

@@ -18,6 +18,11 @@ TOPIC_BIREFRINGENCE = '/laser/birefringence'
 #: Simulator only: the K each round trip was simulated with, for evaluation and recording.
 #: A hardware driver does not publish it, and no controller may subscribe to it.
 TOPIC_SIM_TRUTH = '/laser/sim_truth'
+TOPIC_LASER_STATUS = '/laser/status'
+#: The estimator's K surrogate (not K in K's units) and its latent mean, once per period.
+TOPIC_ESTIMATE = '/estimator/birefringence'
+#: What the controller decided in each control period.
+TOPIC_CONTROLLER_STATUS = '/controller/status'
 
 #: Fields of /laser/state, one message per round trip (angles in radians).
 STATE_FIELDS = ('round_trip', 'E', 'M', 'O', 'energy', 'peak',
@@ -26,6 +31,20 @@ OBJECTIVE_FIELDS = ('O',)
 ANGLE_FIELDS = ('alpha1', 'alpha2', 'alpha3', 'alpha_p')
 BIREFRINGENCE_FIELDS = ('K',)
 SIM_TRUTH_FIELDS = ('round_trip', 'K')
+#: Laser status, once a second: measured rate [round trips/s] and counters since start.
+LASER_STATUS_FIELDS = ('round_trip', 'rate', 'commands_received', 'birefringence_received',
+                       'messages_rejected', 'resets', 'lockstep_timeouts')
+#: /estimator/birefringence: round trip of the measurement, surrogate, the estimator's
+#: own latency [ms], then the latent mean (as many values as the VAE has latents).
+ESTIMATE_FIELDS = ('round_trip', 'surrogate', 'latency_ms')
+#: /controller/status, one per control period: mode is an index into
+#: dlmpc_ros.control.step.MODES; prediction_error is -1 until a prediction was checked;
+#: surrogate is the one used (0 with surrogate_valid = 0 when there was none);
+#: estimator_age is the number of periods since the last estimate (-1: none yet);
+#: latency [ms] is the controller's own step; then the predicted O over the horizon
+#: (outer loop only). Every value is finite.
+CONTROLLER_STATUS_FIELDS = ('round_trip', 'mode', 'prediction_error', 'iterations',
+                            'latency_ms', 'surrogate', 'surrogate_valid', 'estimator_age')
 
 FIELDS = {
     TOPIC_STATE: STATE_FIELDS,
@@ -33,6 +52,7 @@ FIELDS = {
     TOPIC_ANGLES_CMD: ANGLE_FIELDS,
     TOPIC_BIREFRINGENCE: BIREFRINGENCE_FIELDS,
     TOPIC_SIM_TRUTH: SIM_TRUTH_FIELDS,
+    TOPIC_LASER_STATUS: LASER_STATUS_FIELDS,
 }
 
 
@@ -56,6 +76,15 @@ def vector_fault(data: Sequence[float], fields: Sequence[str], limit: float) -> 
         if abs(value) > limit:
             return f'{name} = {value:g} is outside [-{limit:g}, {limit:g}]'
     return None
+
+
+def state_fault(data: Sequence[float]) -> str | None:
+    """What is wrong with a /laser/state vector (lengths, non-finite values, a round trip
+    that is not a count), or None."""
+    fault = vector_fault(data, STATE_FIELDS, 1e300)
+    if fault is None and (data[0] < 0 or data[0] != int(data[0])):
+        fault = f'round_trip = {data[0]} is not a count'
+    return fault
 
 
 class RateLimitedLog:

@@ -33,3 +33,8 @@ def config_file(name: str) -> Path:
     if not path.is_file():
         raise FileNotFoundError(f'missing parameter file {path}; reinstall the package')
     return path
+
+
+def models_dir(override: str | Path = '') -> Path:
+    """The directory of the model files: ``override`` if given, else ``<share>/models``."""
+    return Path(override) if str(override) else share_dir() / 'models'

@@ -9,8 +9,8 @@ import numpy as np
 
 def load_run_csv(path: Path) -> dict[str, np.ndarray]:
     """Columns of a bringup CSV (``round_trip, E, M, O, ..., K``) as arrays."""
-    data = np.genfromtxt(path, delimiter=',', names=True)
-    return {name: np.atleast_1d(data[name]) for name in data.dtype.names}
+    from dlmpc_ros.ros_csv import read_run_csv
+    return read_run_csv(path)
 
 
 def plot_run(run: dict[str, np.ndarray], ax=None):

@@ -4,8 +4,10 @@ Each control period it receives the latest measurement ``(E, M, alpha[4])`` and 
 the angles for the next period:
 
 - inner loop (while the history is shorter than the MP-RNN needs, and whenever the
-  predictor's recent one-step error passes ``error_threshold``): the VAE's surrogate of
-  the latest measurements goes through the K-to-angles map;
+  predictor's recent one-step error passes ``error_threshold``): the estimator's K
+  surrogate of the latest measurement (the VAE, run by the caller: the estimator node or
+  :class:`~dlmpc_ros.control.estimator.SurrogateEstimator`) goes through the K-to-angles
+  map; with no surrogate (a silent estimator) the angles are held (mode ``hold``);
 - outer loop: the MP-RNN predicts the next N states for a plan of N future angle sets,
   seeded by the previous plan (or by the map through the predicted K), and the plan is
   improved by gradient ascent on the summed predicted objective. The number of ascent
@@ -25,12 +27,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from dlmpc_ros.control.estimator import SurrogateEstimator
 from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import ControlStep
 from dlmpc_ros.learning.features import features
 from dlmpc_ros.learning.kmap import KMap
 from dlmpc_ros.learning.mprnn import MPRNN
-from dlmpc_ros.learning.vae import ConditionalVAE
 
 
 @dataclass(frozen=True)
@@ -57,26 +58,13 @@ class DLMPCConfig:
             raise ValueError('learning_rate, error_threshold and accurate_error must be > 0')
 
 
-@dataclass(frozen=True)
-class ControlStep:
-    """What a controller decided in one control period."""
-
-    angles: np.ndarray  # (4,) commanded angles [rad]
-    mode: str  # 'inner' or 'outer'
-    surrogate: float
-    prediction_error: float  # NaN until a prediction could be checked
-    predicted_objective: np.ndarray  # (N,) predicted O over the horizon (empty: inner)
-    iterations: int
-    latency_ms: float
-
-
 class DLMPCController:
     """Stateful DL-MPC controller; one :meth:`step` per control period."""
 
-    def __init__(self, vae: ConditionalVAE, kmap: KMap, mprnn: MPRNN,
-                 config: DLMPCConfig | None = None) -> None:
+    name = 'dlmpc'
+
+    def __init__(self, kmap: KMap, mprnn: MPRNN, config: DLMPCConfig | None = None) -> None:
         self.config = config or DLMPCConfig()
-        self.estimator = SurrogateEstimator(vae)
         self.kmap = kmap
         self.model = mprnn
         self.model.kmap = kmap
@@ -91,8 +79,8 @@ class DLMPCController:
         self._plan: torch.Tensor | None = None             # (N, 4) remaining plan
         self._queued: list[np.ndarray] = []                # apply_all: plan to play out
 
-    def step(self, measurement: np.ndarray) -> ControlStep:
-        """Measurement (6,) -> angles for the next control period."""
+    def step(self, measurement: np.ndarray, surrogate: float | None = None) -> ControlStep:
+        """Measurement (6,) and the estimator's surrogate for it -> next period's angles."""
         started = time.perf_counter()
         measurement = np.asarray(measurement, float)
         current = measurement[2:6]
@@ -107,7 +95,7 @@ class DLMPCController:
                 self.iterations = min(cfg.max_iterations, self.iterations + 1)
             else:
                 self.iterations = max(cfg.min_iterations, self.iterations - 1)
-        surrogate, _ = self.estimator.update(measurement)
+        surrogate = float('nan') if surrogate is None else float(surrogate)
         recent = float(np.mean(self.errors)) if self.errors else 0.0
         full = len(self.history) == self.history.maxlen
         if self._queued and recent <= self.config.error_threshold:
@@ -116,6 +104,9 @@ class DLMPCController:
                                 started, None)
         if not full or recent > self.config.error_threshold:
             self._plan, self._predicted_next, self._queued = None, None, []
+            if not np.isfinite(surrogate):  # estimator silent: hold the angles
+                return self._finish(current, current, 'hold', surrogate, error, np.array([]),
+                                    0, started, None)
             with torch.no_grad():
                 wanted = self.kmap(torch.tensor([[surrogate]], dtype=torch.float32))[0]
             return self._finish(current, wanted.numpy(), 'inner', surrogate, error,

@@ -61,16 +61,14 @@ class DriftInjectorNode(Node):
         self.get_logger().info(f'drift scenario {values["scenario"]} {settings}')
 
     def _on_state(self, msg: Float64MultiArray) -> None:
-        fault = itf.vector_fault(msg.data, itf.STATE_FIELDS, 1e300)
-        round_trip = msg.data[0] if fault is None else -1.0
-        if fault is None and (round_trip < 0 or round_trip != int(round_trip)):
-            fault = f'round_trip = {round_trip} is not a count'
+        fault = itf.state_fault(msg.data)
         if fault is not None:
             self._warn(f'state:{fault.split()[0]}',
                        f'dropped a message on {itf.TOPIC_STATE}: {fault}')
             return
-        if int(round_trip) % self.publish_every == 0:
-            k = float(self.scenario(int(round_trip) + 1))
+        round_trip = int(msg.data[0])
+        if round_trip % self.publish_every == 0:
+            k = float(self.scenario(round_trip + 1))
             self._pub.publish(vector_message(itf.BIREFRINGENCE_FIELDS, [k]))
 
 

@@ -3,8 +3,14 @@
 Publishes every round trip ``/laser/state``, ``/laser/objective`` and, for evaluation
 only, ``/laser/sim_truth`` ``[round_trip, K]`` (the K that round trip ran with); subscribes
 ``/laser/angles_cmd`` ``[alpha1, alpha2, alpha3, alpha_p]`` (rad) and
-``/laser/birefringence`` ``[K]``. Round trips run in a worker thread, free-running or
-paced by ``round_trips_per_second``; commands take effect from the next round trip.
+``/laser/birefringence`` ``[K]``; publishes ``/laser/status`` once a second. Round trips
+run in a worker thread, free-running or paced by ``round_trips_per_second``; commands take
+effect from the next round trip.
+
+Lockstep (for reproducible runs, simulator only): with ``lockstep_period`` P > 0 the
+laser waits after every round trip r with r % P == 0 until a new angle command arrives,
+and with ``lockstep_birefringence`` after every round trip until a new K arrives; after
+``lockstep_timeout`` seconds it warns and goes on, so a dead controller never freezes it.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ DEFAULTS: dict[str, object] = {
     'initial_angles': [-0.39, -0.25, 0.52, -0.14], 'initial_birefringence': 0.1,
     'initial': 'sech', 'seed': 0, 'round_trips_per_second': 0.0, 'max_round_trips': 0,
     'angle_limit': 2 * math.pi, 'birefringence_limit': 1.0, 'wait_for_subscribers': 0,
+    'lockstep_period': 0, 'lockstep_birefringence': False, 'lockstep_timeout': 10.0,
 }
 DESCRIPTIONS = {
     'initial_angles': 'alpha1, alpha2, alpha3, alpha_p at start [rad]',
@@ -42,10 +49,16 @@ DESCRIPTIONS = {
     'angle_limit': 'angle commands with any |alpha| above this [rad] are rejected',
     'birefringence_limit': 'K messages with |K| above this are rejected',
     'wait_for_subscribers': 'hold the first round trip until /laser/state has this many '
-                            'subscribers (so that recorders miss nothing)',
+                            'subscribers (so that recorders miss nothing), and in lockstep '
+                            'until the command and K topics have publishers',
+    'lockstep_period': 'wait for an angle command after every round trip r with r % '
+                       'lockstep_period == 0 (0: free-run)',
+    'lockstep_birefringence': 'wait for a K message after every round trip',
+    'lockstep_timeout': 'seconds to wait in lockstep before warning and going on',
 }
 READ_ONLY = frozenset({'points', 'window', 'initial', 'seed', 'initial_angles',
-                       'initial_birefringence', 'wait_for_subscribers'})
+                       'initial_birefringence', 'wait_for_subscribers', 'lockstep_period',
+                       'lockstep_birefringence'})
 
 
 class LaserSimNode(Node):
@@ -61,8 +74,10 @@ class LaserSimNode(Node):
                              initial=self.values['initial'], seed=self.values['seed'])
         self.finished = False
         self.exit_code = 0
-        self._lock = threading.Lock()
+        self._lock = threading.Condition()
         self._pending: dict[str, object] = {}
+        # Counters (under _lock): valid commands and K received, rejected messages, ...
+        self.counts = dict.fromkeys(itf.LASER_STATUS_FIELDS[2:], 0)
         self._warn = itf.RateLimitedLog(self.get_logger().warning)
         self._state_pub = self.create_publisher(Float64MultiArray, itf.TOPIC_STATE,
                                                 QOS[itf.TOPIC_STATE])
@@ -70,6 +85,10 @@ class LaserSimNode(Node):
                                                     QOS[itf.TOPIC_OBJECTIVE])
         self._truth_pub = self.create_publisher(Float64MultiArray, itf.TOPIC_SIM_TRUTH,
                                                 QOS[itf.TOPIC_SIM_TRUTH])
+        self._status_pub = self.create_publisher(Float64MultiArray, itf.TOPIC_LASER_STATUS,
+                                                 QOS[itf.TOPIC_LASER_STATUS])
+        self._rate_mark = (time.monotonic(), 0)
+        self.create_timer(1.0, self._publish_status)
         for topic, handler in ((itf.TOPIC_ANGLES_CMD, self._on_angles),
                                (itf.TOPIC_BIREFRINGENCE, self._on_birefringence)):
             self.create_subscription(Float64MultiArray, topic, handler, QOS[topic])
@@ -94,7 +113,8 @@ class LaserSimNode(Node):
             problems.append(f'initial must be one of {INITIAL_CONDITIONS}, '
                             f"got {values['initial']!r}")
         for name in ('round_trips_per_second', 'max_round_trips', 'angle_limit',
-                     'birefringence_limit', 'initial_birefringence', 'wait_for_subscribers'):
+                     'birefringence_limit', 'initial_birefringence', 'wait_for_subscribers',
+                     'lockstep_period', 'lockstep_timeout'):
             value = values[name]
             if not math.isfinite(value) or (name != 'initial_birefringence' and value < 0):
                 problems.append(f'{name} must be finite and >= 0, got {value}')
@@ -109,6 +129,8 @@ class LaserSimNode(Node):
         fault = itf.vector_fault(msg.data, itf.FIELDS[topic], limit)
         if fault is not None:
             self._warn(f'{topic}:{fault.split()[0]}', f'dropped a message on {topic}: {fault}')
+            with self._lock:
+                self.counts['messages_rejected'] += 1
             return None
         return np.array(msg.data, dtype=float)
 
@@ -117,12 +139,49 @@ class LaserSimNode(Node):
         if angles is not None:
             with self._lock:
                 self._pending['angles'] = angles
+                self.counts['commands_received'] += 1
+                self._lock.notify_all()
 
     def _on_birefringence(self, msg: Float64MultiArray) -> None:
         k = self._on_vector(itf.TOPIC_BIREFRINGENCE, msg, self.values['birefringence_limit'])
         if k is not None:
             with self._lock:
                 self._pending['birefringence'] = k[0]
+                self.counts['birefringence_received'] += 1
+                self._lock.notify_all()
+
+    def _publish_status(self) -> None:
+        now, round_trip = time.monotonic(), self.cavity.round_trip
+        then, before = self._rate_mark
+        self._rate_mark = (now, round_trip)
+        with self._lock:
+            counts = list(self.counts.values())
+        self._status_pub.publish(vector_message(
+            itf.LASER_STATUS_FIELDS, [round_trip, (round_trip - before) / (now - then), *counts]))
+
+    def _wait_for(self, counter: str, seen: int) -> None:
+        """Lockstep: wait until ``counts[counter]`` passes ``seen`` (or time out)."""
+        timeout = self.values['lockstep_timeout']
+        with self._lock:
+            arrived = self._lock.wait_for(
+                lambda: self.counts[counter] > seen or self._stop.is_set(), timeout)
+            if not arrived:
+                self.counts['lockstep_timeouts'] += 1
+        if not arrived:
+            self._warn(f'lockstep:{counter}', f'lockstep: no new {counter.split("_")[0]} '
+                       f'message within {timeout:g} s at round trip {self.cavity.round_trip}; '
+                       'going on')
+
+    def _wait_for_graph(self) -> None:
+        """Before round trip 1: wait for subscribers (and, in lockstep, publishers)."""
+        wanted = self.values['wait_for_subscribers']
+        needs = [lambda: self._state_pub.get_subscription_count() >= wanted]
+        if self.values['lockstep_period'] > 0:
+            needs.append(lambda: self.count_publishers(itf.TOPIC_ANGLES_CMD) > 0)
+        if self.values['lockstep_birefringence']:
+            needs.append(lambda: self.count_publishers(itf.TOPIC_BIREFRINGENCE) > 0)
+        while not all(need() for need in needs) and not self._stop.wait(0.01):
+            pass
 
     def _apply_pending(self) -> None:
         with self._lock:
@@ -146,19 +205,22 @@ class LaserSimNode(Node):
             self.finished = True
 
     def _round_trips(self) -> None:
-        wanted = self.values['wait_for_subscribers']
-        while self._state_pub.get_subscription_count() < wanted and not self._stop.wait(0.01):
-            pass
+        self._wait_for_graph()
         next_time = time.monotonic()
         limit = self.values['max_round_trips']
         while not self._stop.is_set() and (limit == 0 or self.cavity.round_trip < limit):
             self._apply_pending()
             k = float(self.cavity.birefringence[0])
+            with self._lock:
+                seen_angles = self.counts['commands_received']
+                seen_k = self.counts['birefringence_received']
             result = self.cavity.step()
             if not result.finite[0]:
                 self.get_logger().error(f'field blew up at round trip {self.cavity.round_trip};'
                                         ' reset to the initial pulse')
                 self.cavity.reset()
+                with self._lock:
+                    self.counts['resets'] += 1
                 continue
             row = result.laser(0)
             state = [row['round_trip'], row['E'], row['M'], row['O'], row['energy'],
@@ -166,6 +228,11 @@ class LaserSimNode(Node):
             self._truth_pub.publish(vector_message(itf.SIM_TRUTH_FIELDS, [row['round_trip'], k]))
             self._state_pub.publish(vector_message(itf.STATE_FIELDS, state))
             self._objective_pub.publish(vector_message(itf.OBJECTIVE_FIELDS, [row['O']]))
+            period = self.values['lockstep_period']
+            if period > 0 and row['round_trip'] % period == 0:
+                self._wait_for('commands_received', seen_angles)
+            if self.values['lockstep_birefringence']:
+                self._wait_for('birefringence_received', seen_k)
             rate = self.values['round_trips_per_second']
             if rate > 0:
                 next_time = max(next_time + 1.0 / rate, time.monotonic() - 1.0)
@@ -174,6 +241,8 @@ class LaserSimNode(Node):
     def stop(self) -> None:
         """Stop the worker thread and wait for it (call before destroying the node)."""
         self._stop.set()
+        with self._lock:
+            self._lock.notify_all()
         self._worker.join()
 
 

@@ -11,6 +11,9 @@ topic                          reliability  history      why
 /laser/angles_cmd              reliable    keep last 10    commands are never silently lost
 /laser/birefringence           reliable    keep last 10    same
 /laser/sim_truth               reliable    keep last 1000  like /laser/state (simulator only)
+/laser/status                  reliable    keep last 10    once a second
+/estimator/birefringence       reliable    keep last 1000  one per control period, none missed
+/controller/status             reliable    keep last 1000  same
 ============================  ==========  ===========  ======================================
 """
 
@@ -35,6 +38,9 @@ QOS = {
     interfaces.TOPIC_ANGLES_CMD: COMMAND_QOS,
     interfaces.TOPIC_BIREFRINGENCE: COMMAND_QOS,
     interfaces.TOPIC_SIM_TRUTH: STREAM_QOS,
+    interfaces.TOPIC_LASER_STATUS: COMMAND_QOS,
+    interfaces.TOPIC_ESTIMATE: STREAM_QOS,
+    interfaces.TOPIC_CONTROLLER_STATUS: STREAM_QOS,
 }
 
 

@@ -2,7 +2,8 @@
 
 Each recorded row is a ``/laser/state`` message joined by round trip with the K that the
 simulator used for it (``/laser/sim_truth``); without a simulator (a hardware driver),
-K is NaN.
+K is NaN. Each control decision (``/controller/status``) goes to a second CSV
+(:func:`decisions_path`) with the estimator's latency for the same round trip.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from dlmpc_ros import interfaces as itf
 from dlmpc_ros.graph import NodeGraph
 from dlmpc_ros.ros.io import QOS
 from dlmpc_ros.ros.params import stop_on_signals
+from dlmpc_ros.ros_csv import decisions_path
 
 #: States wait at most this many rows for their K before they are written without it.
 MAX_PENDING = 2000
@@ -33,8 +35,12 @@ MAX_PENDING = 2000
 class MonitorNode(Node):
     """Joins state and true K by round trip and hands each row to ``on_row`` in order."""
 
-    def __init__(self, on_row: Callable[[list[float], float], None]) -> None:
+    def __init__(self, on_row: Callable[[list[float], float], None],
+                 on_decision: Callable[[list[float]], None] | None = None) -> None:
         super().__init__('bringup_monitor')
+        self._on_decision = on_decision
+        self._estimate_latency: dict[int, float] = {}
+        self.decisions = 0
         self.state: list[float] | None = None
         self.k = math.nan
         self.k_seen = False
@@ -47,6 +53,24 @@ class MonitorNode(Node):
                                (itf.TOPIC_SIM_TRUTH, self._on_truth),
                                (itf.TOPIC_BIREFRINGENCE, self._on_k)):
             self.create_subscription(Float64MultiArray, topic, handler, QOS[topic])
+        if on_decision is not None:
+            for topic, handler in ((itf.TOPIC_CONTROLLER_STATUS, self._on_status),
+                                   (itf.TOPIC_ESTIMATE, self._on_estimate)):
+                self.create_subscription(Float64MultiArray, topic, handler, QOS[topic])
+
+    def _on_estimate(self, msg: Float64MultiArray) -> None:
+        data = msg.data
+        if len(data) >= len(itf.ESTIMATE_FIELDS) and math.isfinite(data[0]):
+            self._estimate_latency[int(data[0])] = data[2]
+            while len(self._estimate_latency) > 256:
+                self._estimate_latency.pop(next(iter(self._estimate_latency)))
+
+    def _on_status(self, msg: Float64MultiArray) -> None:
+        data = list(msg.data[:len(itf.CONTROLLER_STATUS_FIELDS)])
+        if len(data) == len(itf.CONTROLLER_STATUS_FIELDS) and math.isfinite(data[0]):
+            latency = self._estimate_latency.pop(int(data[0]), math.nan)
+            self.decisions += 1
+            self._on_decision([*data, latency])
 
     def _on_state(self, msg: Float64MultiArray) -> None:
         if itf.vector_fault(msg.data, itf.STATE_FIELDS, 1e300) is None:
@@ -85,6 +109,9 @@ def write_header(writer) -> None:
     writer.writerow([*itf.STATE_FIELDS, 'K'])
 
 
+DECISION_FIELDS = (*itf.CONTROLLER_STATUS_FIELDS, 'estimator_latency_ms')
+
+
 def status_line(state: list[float], k: float, rate: float) -> str:
     """One-line live status of the run."""
     k_text = f'{k:+.4f}' if math.isfinite(k) else '   n/a'
@@ -96,20 +123,27 @@ def run_monitor(args: argparse.Namespace, graph: NodeGraph) -> int:
     """Spin the monitor until the run ends; returns the bringup's exit code so far."""
     requested = stop_on_signals()
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-    csv_file = None
-    writer = None
+    files = []
+    writer = decision_writer = None
     limit = args.round_trips
     if args.csv is not None:
         args.csv.parent.mkdir(parents=True, exist_ok=True)
-        csv_file = open(args.csv, 'w', newline='')
-        writer = csv.writer(csv_file)
+        files.append(open(args.csv, 'w', newline=''))
+        writer = csv.writer(files[-1])
         write_header(writer)
+        files.append(open(decisions_path(args.csv), 'w', newline=''))
+        decision_writer = csv.writer(files[-1])
+        decision_writer.writerow(DECISION_FIELDS)
 
     def on_row(state: list[float], k: float) -> None:
         if writer is not None and (limit == 0 or state[0] <= limit):
             writer.writerow([*(repr(x) for x in state), repr(k)])
 
-    node = MonitorNode(on_row)
+    def on_decision(row: list[float]) -> None:
+        if limit == 0 or row[0] <= limit:
+            decision_writer.writerow([repr(x) for x in row])
+
+    node = MonitorNode(on_row, on_decision if decision_writer is not None else None)
     executor = EventsExecutor()
     executor.add_node(node)
     need_k = 'drift_injector' in args.nodes
@@ -148,8 +182,8 @@ def run_monitor(args: argparse.Namespace, graph: NodeGraph) -> int:
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
-        if csv_file is not None:
-            csv_file.close()
+        for handle in files:
+            handle.close()
     return code
 
 

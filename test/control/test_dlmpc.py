@@ -10,15 +10,13 @@ from dlmpc_ros.control.dlmpc import DLMPCConfig, DLMPCController
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.learning.kmap import KMap, KMapConfig
 from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
-from dlmpc_ros.learning.vae import ConditionalVAE, VAEConfig
 
 
 def _controller(**config) -> DLMPCController:
     torch.manual_seed(0)
-    vae = ConditionalVAE(VAEConfig(window=2, hidden=16))
     kmap = KMap(KMapConfig(hidden=16))
     mprnn = MPRNN(MPRNNConfig(window=2, horizon=4, n_hidden=16, n_latent=8))
-    return DLMPCController(vae, kmap, mprnn, DLMPCConfig(**config))
+    return DLMPCController(kmap, mprnn, DLMPCConfig(**config))
 
 
 def _measurement(rng, angles):
@@ -26,13 +24,13 @@ def _measurement(rng, angles):
                  angles]
 
 
-def _run(ctrl: DLMPCController, periods: int, seed: int):
+def _run(ctrl: DLMPCController, periods: int, seed: int, surrogate: float | None = 0.05):
     """Drive the controller with noisy measurements at its own angles; (modes, last step)."""
     rng = np.random.default_rng(seed)
     angles = np.zeros(4)
     modes = []
     for _ in range(periods):
-        step = ctrl.step(_measurement(rng, angles))
+        step = ctrl.step(_measurement(rng, angles), surrogate)
         modes.append(step.mode)
         angles = step.angles
     return modes, step
@@ -62,15 +60,26 @@ def test_commands_respect_angle_limits_and_step():
     rng = np.random.default_rng(2)
     angles = np.array([0.9, -0.45, 0.0, 0.3])
     for _ in range(ctrl.model.min_history() + 6):
-        step = ctrl.step(_measurement(rng, angles))
+        step = ctrl.step(_measurement(rng, angles), 0.1)
         assert (step.angles >= -0.5).all() and (step.angles <= 1.0).all()
         assert np.abs(step.angles - angles).max() <= 0.05 + 1e-9
         angles = step.angles
 
 
+def test_silent_estimator_holds_the_angles_in_the_inner_loop():
+    ctrl = _controller(error_threshold=1e6)
+    rng = np.random.default_rng(3)
+    angles = np.array([0.1, -0.2, 0.3, 0.4])
+    step = ctrl.step(_measurement(rng, angles), None)
+    assert step.mode == 'hold'
+    np.testing.assert_array_equal(step.angles, angles)
+    assert ctrl.step(_measurement(rng, angles), 0.2).mode == 'inner'
+
+
 def test_controller_never_receives_the_true_birefringence():
     params = inspect.signature(DLMPCController.step).parameters
-    assert list(params) == ['self', 'measurement']
+    assert list(params) == ['self', 'measurement', 'surrogate']
+    assert not hasattr(DLMPCController, 'observe_truth')
     import dlmpc_ros.control.dlmpc as module
     source = inspect.getsource(module)
     assert 'sim_truth' not in source and 'birefringence' not in source.replace(

@@ -14,7 +14,8 @@ def test_bringup_runs_the_graph_and_records_every_round_trip(ros_env, tmp_path):
     out = tmp_path / 'run.csv'
     domain = ros_env['ROS_DOMAIN_ID']
     proc = subprocess.run(
-        [sys.executable, '-m', 'dlmpc_ros.bringup', '--round-trips', '400', '--rate', '1000',
+        [sys.executable, '-m', 'dlmpc_ros.bringup', '--controller', 'none', '--round-trips', '400',
+         '--rate', '1000',
          '--scenario', 'sinusoidal', '--scenario-param', 'period=200',
          '--scenario-param', 'amplitude=0.25',
          '--domain-id', domain, '--csv', str(out), '--plot', str(tmp_path / 'run.png'),
@@ -61,7 +62,8 @@ def test_bringup_rejects_bad_options(ros_env, bad):
 
 def test_bringup_reports_a_node_that_dies(ros_env, tmp_path):
     proc = subprocess.run(
-        [sys.executable, '-m', 'dlmpc_ros.bringup', '--round-trips', '100', '--laser-param',
+        [sys.executable, '-m', 'dlmpc_ros.bringup', '--controller', 'none', '--round-trips', '100',
+         '--laser-param',
          'points=8', '--domain-id', ros_env['ROS_DOMAIN_ID'], '--connect-timeout', '60',
          '--log-dir', str(tmp_path / 'logs')],
         env=ros_env, capture_output=True, text=True, timeout=120)
@@ -75,7 +77,8 @@ def test_ctrl_c_stops_the_graph_cleanly(ros_env, tmp_path):
     import time
 
     proc = subprocess.Popen(
-        [sys.executable, '-u', '-m', 'dlmpc_ros.bringup', '--rate', '500', '--domain-id',
+        [sys.executable, '-u', '-m', 'dlmpc_ros.bringup', '--controller', 'none', '--rate', '500',
+         '--domain-id',
          ros_env['ROS_DOMAIN_ID'], '--log-dir', str(tmp_path / 'logs')],
         env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:

@@ -1,0 +1,71 @@
+"""Build any controller by name from the shipped model files (used by the controller
+nodes and by ``dlmpc-evaluate``, so that both run exactly the same objects).
+
+Raises :class:`~dlmpc_ros.learning.checkpoint.ModelFileError` (missing or corrupt file,
+with the command that regenerates it) or ValueError (bad settings).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from dlmpc_ros.control.baselines import FixedBestController, OracleController, PassiveController
+from dlmpc_ros.control.dlmpc import DLMPCConfig, DLMPCController
+from dlmpc_ros.control.estimator import SurrogateEstimator
+from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import Controller
+
+CONTROLLERS = ('dlmpc', 'esc', 'passive', 'fixed_best', 'oracle')
+BASELINES_FILE = 'oracle.npz'
+
+
+def load_estimator(models_dir: Path) -> SurrogateEstimator:
+    """The run-time VAE estimator from ``models_dir/vae.pt``."""
+    from dlmpc_ros.learning.pipeline import load_vae
+    vae, _ = load_vae(Path(models_dir) / 'vae.pt')
+    return SurrogateEstimator(vae)
+
+
+def load_dlmpc(models_dir: Path, config: DLMPCConfig | None = None) -> DLMPCController:
+    """The DL-MPC controller from ``models_dir/{kmap,mprnn}.pt`` (no file holds true K)."""
+    from dlmpc_ros.learning.mprnn import load_mprnn
+    from dlmpc_ros.learning.pipeline import load_kmap
+    kmap, _ = load_kmap(Path(models_dir) / 'kmap.pt')
+    return DLMPCController(kmap, load_mprnn(Path(models_dir) / 'mprnn.pt', kmap), config)
+
+
+def oracle_table(baselines: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(K grid, angles) the oracle and the passive setting use: the branch-continuous
+    tracking path (the point-wise arg-max jumps between branches and loses lock)."""
+    return baselines['K'], baselines['tracking_angles']
+
+
+def passive_angles(baselines: dict[str, np.ndarray], initial_k: float) -> np.ndarray:
+    """The best angles for the initial K: what the passive baseline holds."""
+    k_grid, table = oracle_table(baselines)
+    return table[np.abs(k_grid - initial_k).argmin()].copy()
+
+
+def make_baseline(name: str, models_dir: Path, limits: AngleLimits | None = None,
+                  angles: np.ndarray | None = None, initial_k: float | None = None) -> Controller:
+    """A baseline controller: ``esc``, ``passive`` (``angles``, or the best for
+    ``initial_k``), ``fixed_best`` or ``oracle``."""
+    limits = limits or AngleLimits()
+    if name == 'esc':
+        from dlmpc_ros.control.esc import ESCController
+        return ESCController(limits=limits)
+    from dlmpc_ros.learning.baselines import load_baselines
+    baselines = load_baselines(Path(models_dir) / BASELINES_FILE)
+    if name == 'passive':
+        if angles is None:
+            if initial_k is None:
+                raise ValueError('passive needs its angles or the initial K they were tuned for')
+            angles = passive_angles(baselines, initial_k)
+        return PassiveController(angles, limits)
+    if name == 'fixed_best':
+        return FixedBestController(baselines['fixed_best_angles'], limits)
+    if name == 'oracle':
+        return OracleController(*oracle_table(baselines), limits)
+    raise ValueError(f'unknown baseline {name!r}; choose one of {CONTROLLERS[1:]}')

@@ -1,0 +1,1 @@
+"""Closed-loop evaluation (no rclpy): run records, the in-process loop, metrics, figures."""

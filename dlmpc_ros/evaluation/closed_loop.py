@@ -1,0 +1,71 @@
+"""The closed loop in one process: simulator, drift, estimator and controller objects
+stepped in the same order as the node graph in lockstep.
+
+Round trip r runs with K = scenario(r) and the angles commanded after round trip r - 1.
+After every round trip r with r % period == 0 the measurement ``(E, M, alpha[4])`` of
+round trip r goes to the estimator and the controller, whose angles apply from r + 1.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from dlmpc_ros.control.estimator import SurrogateEstimator
+from dlmpc_ros.control.step import Controller
+from dlmpc_ros.core.cavity import Cavity
+from dlmpc_ros.core.config import CavityConfig
+from dlmpc_ros.core.drift import Scenario
+from dlmpc_ros.evaluation.record import RecordBuilder, RunRecord
+
+
+def random_initial_angles(seed: int) -> np.ndarray:
+    """A cold start: four angles uniform in [-pi/2, pi/2) [rad] from ``seed``."""
+    return np.random.default_rng(seed).uniform(-np.pi / 2, np.pi / 2, 4)
+
+
+def run_closed_loop(controller: Controller, scenario: Scenario, round_trips: int,
+                    period: int = 10, initial_angles: np.ndarray | None = None,
+                    cavity_config: CavityConfig | None = None,
+                    estimator: SurrogateEstimator | None = None,
+                    meta: dict | None = None,
+                    progress: Callable[[int], None] | None = None) -> RunRecord:
+    """Run ``round_trips`` round trips of the closed loop; returns the record.
+
+    ``estimator`` (optional) supplies the surrogate the controller gets with each
+    measurement; a controller with ``observe_truth`` (the oracle) is shown the true K.
+    ``progress`` is called with the number of round trips done, every control period.
+    """
+    if round_trips < 1 or period < 1:
+        raise ValueError('round_trips and period must be >= 1')
+    angles = np.zeros(4) if initial_angles is None else np.asarray(initial_angles, float)
+    cavity = Cavity(cavity_config, batch=1, angles=angles, birefringence=scenario(1))
+    builder = RecordBuilder(meta)
+    observe_truth = getattr(controller, 'observe_truth', None)
+    for r in range(1, round_trips + 1):
+        k = float(scenario(r))
+        cavity.set_birefringence(k)
+        applied = cavity.angles[0]
+        result = cavity.step()
+        if not result.finite[0]:  # as the node does: reset, publish nothing, go on
+            cavity.reset()
+            builder.add_round_trip(r, k, np.nan, np.nan, np.nan, applied)
+            continue
+        e, m, o = float(result.E[0]), float(result.M[0]), float(result.O[0])
+        builder.add_round_trip(r, k, e, m, o, applied)
+        if r % period:
+            continue
+        measurement = np.array([e, m, *applied])
+        started = time.perf_counter()
+        surrogate = None if estimator is None else estimator.update(measurement)[0]
+        estimate_ms = 1e3 * (time.perf_counter() - started)
+        if observe_truth is not None:
+            observe_truth(k)
+        step = controller.step(measurement, surrogate)
+        cavity.set_angles(step.angles)
+        builder.add_step(r, step, estimate_ms)
+        if progress is not None:
+            progress(r)
+    return builder.build()

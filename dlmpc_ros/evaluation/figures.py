@@ -1,0 +1,93 @@
+"""Figures of closed-loop runs (reads run records only; matplotlib imported lazily).
+
+- :func:`plot_tracking` (the paper's Figs. 5 and 6): O of every controller against the
+  oracle envelope O*(K(t)), K over time, and the angles one controller set.
+- :func:`plot_surrogate` (the paper's Fig. 4): the estimator's surrogate against K.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from dlmpc_ros.evaluation.record import RunRecord
+from dlmpc_ros.learning.oracle import envelope_objective
+
+ANGLE_NAMES = ('alpha1', 'alpha2', 'alpha3', 'alpha_p')
+
+
+def _smooth(x: np.ndarray, width: int) -> np.ndarray:
+    if width <= 1 or x.size < width:
+        return x
+    return np.convolve(np.nan_to_num(x), np.ones(width) / width, mode='same')
+
+
+def plot_tracking(records: dict[str, RunRecord], envelope: dict[str, np.ndarray],
+                  angles_of: str, title: str, path: Path) -> Path:
+    """Three panels over round trips: O per controller (smoothed over 50 round trips) and
+    O*(K); K; the angles ``angles_of`` commanded."""
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, 1, figsize=(10, 8), sharex=True, constrained_layout=True)
+    any_record = next(iter(records.values()))
+    r = any_record.round_trip
+    axes[0].plot(r, envelope_objective(envelope, any_record.K), color='k', lw=1.2, ls='--',
+                 label='oracle envelope O*(K)')
+    for name, record in records.items():
+        axes[0].plot(record.round_trip, _smooth(record.O, 50), lw=1.0, label=name)
+    axes[0].set_ylabel('O = E/M')
+    axes[0].legend(ncol=3, fontsize=8, loc='lower right')
+    axes[1].plot(r, any_record.K, color='tab:red')
+    axes[1].set_ylabel('K (true)')
+    shown = records.get(angles_of, any_record)
+    for i, name in enumerate(ANGLE_NAMES):
+        axes[2].plot(shown.round_trip, shown.angles[:, i], lw=0.9, label=name)
+    axes[2].set_ylabel(f'angles of {angles_of} [rad]')
+    axes[2].set_xlabel('round trip')
+    axes[2].legend(ncol=4, fontsize=8)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[0].set_title(title)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def surrogate_correlation(record: RunRecord) -> float | None:
+    """|Pearson r| between the surrogate and the true K at the control periods."""
+    ok = np.isfinite(record.surrogate)
+    if ok.sum() < 3:
+        return None
+    index = np.searchsorted(record.round_trip, record.control_round_trip[ok])
+    k = record.K[np.clip(index, 0, record.K.size - 1)]
+    if np.std(k) == 0 or np.std(record.surrogate[ok]) == 0:
+        return None
+    return float(abs(np.corrcoef(record.surrogate[ok], k)[0, 1]))
+
+
+def plot_surrogate(record: RunRecord, title: str, path: Path) -> Path:
+    """The surrogate and the true K over time (twin axes), with |r| in the title."""
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(10, 3.5), constrained_layout=True)
+    ax.plot(record.control_round_trip, record.surrogate, lw=0.7, color='tab:blue',
+            label='VAE surrogate')
+    ax.set_ylabel('surrogate', color='tab:blue')
+    ax.set_xlabel('round trip')
+    twin = ax.twinx()
+    twin.plot(record.round_trip, record.K, color='tab:red', lw=1.0, label='true K')
+    twin.set_ylabel('K (true)', color='tab:red')
+    r = surrogate_correlation(record)
+    ax.set_title(f'{title}: |r| = {r:.3f}' if r is not None else title)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,80 @@
+"""baseline_controller: what a lab would use instead of DL-MPC, on the same topics.
+
+``controller`` selects ``esc`` (extremum seeking), ``passive`` (the angles best for the
+initial K, held), ``fixed_best`` (the angles with the best worst-case O over the K range)
+or ``oracle`` (evaluation only: subscribes ``/laser/sim_truth`` for the true K, which no
+other controller reads). Publishes ``/laser/angles_cmd`` and ``/controller/status`` once
+per control period of ``/laser/state``.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+import numpy as np
+from rclpy.experimental import EventsExecutor
+from std_msgs.msg import Float64MultiArray
+
+from dlmpc_ros import interfaces as itf
+from dlmpc_ros.control.factory import CONTROLLERS, make_baseline
+from dlmpc_ros.learning.checkpoint import ModelFileError
+from dlmpc_ros.paths import models_dir
+from dlmpc_ros.ros import params
+from dlmpc_ros.ros.controller_base import ControllerNodeBase
+from dlmpc_ros.ros.io import QOS
+
+BASELINES = CONTROLLERS[1:]
+DEFAULTS: dict[str, object] = {'controller': 'fixed_best', 'angles': [0.0],
+                               'initial_birefringence': math.nan}
+DESCRIPTIONS = {
+    'controller': f'which baseline: one of {BASELINES}',
+    'angles': 'passive only: the 4 angles to hold [rad] (else tuned for '
+              'initial_birefringence)',
+    'initial_birefringence': 'passive only: the K the passive setting was tuned for',
+}
+
+
+class BaselineControllerNode(ControllerNodeBase):
+    def __init__(self) -> None:
+        super().__init__('baseline_controller', DEFAULTS, DESCRIPTIONS)
+        name = self.values['controller']
+        if name not in BASELINES:
+            raise params.StartupError(f'controller must be one of {BASELINES}, got {name!r}')
+        angles = np.array(self.values['angles'], float)
+        k0 = self.values['initial_birefringence']
+        try:
+            self.controller = make_baseline(
+                name, models_dir(self.values['models_dir']), self.limits,
+                angles=angles if angles.size == 4 else None,
+                initial_k=None if math.isnan(k0) else k0)
+        except (ModelFileError, FileNotFoundError, ValueError) as err:
+            raise params.StartupError(str(err)) from None
+        self._truth: dict[int, float] = {}
+        if name == 'oracle':
+            self.create_subscription(Float64MultiArray, itf.TOPIC_SIM_TRUTH, self._on_truth,
+                                     QOS[itf.TOPIC_SIM_TRUTH])
+        self.start()
+
+    def _on_truth(self, msg: Float64MultiArray) -> None:
+        fault = itf.vector_fault(msg.data, itf.SIM_TRUTH_FIELDS, 1e300)
+        if fault is not None:
+            return self._drop(itf.TOPIC_SIM_TRUTH, fault)
+        if int(msg.data[0]) % self.period == 0:
+            self._truth[int(msg.data[0])] = msg.data[1]
+            while len(self._truth) > 64:
+                self._truth.pop(next(iter(self._truth)))
+        return None
+
+    def before_step(self, state: np.ndarray) -> None:
+        k = self._truth.get(int(state[0]))
+        if k is not None:  # the simulator publishes the truth before the state
+            self.controller.observe_truth(k)
+
+
+def main(args: list[str] | None = None) -> None:
+    sys.exit(params.run_node(BaselineControllerNode, args, executor_factory=EventsExecutor))
+
+
+if __name__ == '__main__':
+    main()

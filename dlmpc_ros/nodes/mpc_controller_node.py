@@ -1,0 +1,64 @@
+"""mpc_controller: the DL-MPC controller (MP-RNN planning, VAE surrogate + map inner loop).
+
+Subscribes ``/laser/state`` and ``/estimator/birefringence``; once per control period
+publishes ``/laser/angles_cmd`` and ``/controller/status``. It never reads the true K:
+it has no subscription to ``/laser/birefringence`` or ``/laser/sim_truth``, and none of
+the files it loads (``kmap.pt``, ``mprnn.pt``) holds K.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from rclpy.experimental import EventsExecutor
+
+from dlmpc_ros.control.dlmpc import DLMPCConfig
+from dlmpc_ros.control.factory import load_dlmpc
+from dlmpc_ros.learning.checkpoint import ModelFileError
+from dlmpc_ros.paths import models_dir
+from dlmpc_ros.ros import params
+from dlmpc_ros.ros.controller_base import ControllerNodeBase
+
+_CFG = DLMPCConfig()
+DEFAULTS: dict[str, object] = {
+    'min_iterations': _CFG.min_iterations, 'max_iterations': _CFG.max_iterations,
+    'start_iterations': _CFG.start_iterations, 'learning_rate': _CFG.learning_rate,
+    'error_threshold': _CFG.error_threshold, 'accurate_error': _CFG.accurate_error,
+    'apply_all': _CFG.apply_all,
+}
+DESCRIPTIONS = {
+    'min_iterations': 'fewest gradient-ascent iterations per plan',
+    'max_iterations': 'most gradient-ascent iterations per plan',
+    'start_iterations': 'iterations of the first plan',
+    'learning_rate': 'Adam step of the plan optimization [rad]',
+    'error_threshold': 'recent one-step prediction error (normalized) above which the '
+                       'VAE + map inner loop takes over',
+    'accurate_error': 'prediction errors below this count as accurate (more iterations)',
+    'apply_all': 'apply the whole N-period plan before re-planning (the paper) instead of '
+                 'only its first step',
+}
+
+
+class MPCControllerNode(ControllerNodeBase):
+    uses_estimator = True
+
+    def __init__(self) -> None:
+        super().__init__('mpc_controller', DEFAULTS, DESCRIPTIONS)
+        try:
+            config = DLMPCConfig(limits=self.limits,
+                                 **{name: self.values[name] for name in DEFAULTS})
+        except (ValueError, TypeError) as err:
+            raise params.StartupError(str(err)) from None
+        try:
+            self.controller = load_dlmpc(models_dir(self.values['models_dir']), config)
+        except (ModelFileError, FileNotFoundError) as err:
+            raise params.StartupError(str(err)) from None
+        self.start()
+
+
+def main(args: list[str] | None = None) -> None:
+    sys.exit(params.run_node(MPCControllerNode, args, executor_factory=EventsExecutor))
+
+
+if __name__ == '__main__':
+    main()

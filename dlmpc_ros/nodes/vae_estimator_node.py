@@ -1,0 +1,75 @@
+"""vae_estimator: the VAE's K surrogate from what is measured, once per control period.
+
+Subscribes ``/laser/state``; for every round trip r with r % period == 0 it feeds the
+measurement ``(E, M, alpha[4])`` to the VAE encoder and publishes
+``/estimator/birefringence`` ``[r, surrogate, latency_ms, latent mean...]``. The
+surrogate is a coordinate of the latent space that tracks K, not K in K's units.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray
+
+from dlmpc_ros import interfaces as itf
+from dlmpc_ros.control.factory import load_estimator
+from dlmpc_ros.learning.checkpoint import ModelFileError
+from dlmpc_ros.paths import models_dir
+from dlmpc_ros.ros import params
+from dlmpc_ros.ros.io import QOS, vector_message
+
+DEFAULTS: dict[str, object] = {'period': 10, 'models_dir': ''}
+DESCRIPTIONS = {'period': 'control period P [round trips]: one estimate per P round trips',
+                'models_dir': 'directory holding vae.pt (empty: the installed models/)'}
+
+
+class VAEEstimatorNode(Node):
+    def __init__(self) -> None:
+        super().__init__('vae_estimator')
+        values = params.declare(self, DEFAULTS, DESCRIPTIONS, frozenset(DEFAULTS))
+        self.period = values['period']
+        if not (isinstance(self.period, int) and self.period >= 1):
+            raise params.StartupError(f'period must be an integer >= 1, got {self.period}')
+        try:
+            self.estimator = load_estimator(models_dir(values['models_dir']))
+        except (ModelFileError, FileNotFoundError) as err:
+            raise params.StartupError(str(err)) from None
+        self._warn = itf.RateLimitedLog(self.get_logger().warning)
+        self._pub = self.create_publisher(Float64MultiArray, itf.TOPIC_ESTIMATE,
+                                          QOS[itf.TOPIC_ESTIMATE])
+        self.create_subscription(Float64MultiArray, itf.TOPIC_STATE, self._on_state,
+                                 QOS[itf.TOPIC_STATE])
+        self._fields = [*itf.ESTIMATE_FIELDS,
+                        *(f'z{i + 1}' for i in range(self.estimator.vae.config.latent))]
+
+    def _on_state(self, msg: Float64MultiArray) -> None:
+        fault = itf.state_fault(msg.data)
+        if fault is not None:
+            self._warn(f'state:{fault.split()[0]}',
+                       f'dropped a message on {itf.TOPIC_STATE}: {fault}')
+            return
+        round_trip = int(msg.data[0])
+        if round_trip % self.period:
+            return
+        started = time.perf_counter()
+        measurement = np.r_[msg.data[1:3], msg.data[6:10]]
+        surrogate, latent = self.estimator.update(measurement)
+        if not (np.isfinite(surrogate) and np.isfinite(latent).all()):
+            self._warn('nonfinite', f'estimate at round trip {round_trip} is not finite; '
+                       'not published')
+            return
+        latency_ms = 1e3 * (time.perf_counter() - started)
+        self._pub.publish(vector_message(self._fields,
+                                         [round_trip, surrogate, latency_ms, *latent]))
+
+
+def main(args: list[str] | None = None) -> None:
+    sys.exit(params.run_node(VAEEstimatorNode, args))
+
+
+if __name__ == '__main__':
+    main()

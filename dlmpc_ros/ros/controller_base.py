@@ -1,0 +1,162 @@
+"""What both controller nodes share: one decision per control period of /laser/state.
+
+A state message whose round trip r has r % period == 0 becomes the pending measurement.
+A node that uses the estimator acts once the estimate of the same round trip arrives, or
+after ``estimator_timeout`` seconds without it (the controller then gets no surrogate and
+says so on its status, ``estimator_age`` = periods since the last estimate). It publishes
+the angles on /laser/angles_cmd and the decision on /controller/status.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray
+
+from dlmpc_ros import interfaces as itf
+from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import Controller, ControlStep
+from dlmpc_ros.ros import params
+from dlmpc_ros.ros.io import QOS, vector_message
+
+COMMON_DEFAULTS: dict[str, object] = {
+    'period': 10, 'angle_low': -math.pi, 'angle_high': math.pi, 'max_step': 0.25,
+    'models_dir': '', 'estimator_timeout': 0.5,
+}
+COMMON_DESCRIPTIONS = {
+    'period': 'control period P [round trips]: one decision per P round trips',
+    'angle_low': 'lowest angle the servos may be sent to [rad]',
+    'angle_high': 'highest angle the servos may be sent to [rad]',
+    'max_step': 'largest angle change per control period [rad] (servo speed)',
+    'models_dir': 'directory of the model files (empty: the installed models/)',
+    'estimator_timeout': 'seconds to wait for the estimate of a period before acting '
+                         'without it',
+}
+
+
+def limits_from(values: dict) -> AngleLimits:
+    """AngleLimits from the node's parameters; StartupError naming the problem."""
+    if not (isinstance(values['period'], int) and values['period'] >= 1):
+        raise params.StartupError(f"period must be an integer >= 1, got {values['period']}")
+    if not values['estimator_timeout'] > 0:
+        raise params.StartupError('estimator_timeout must be > 0 s')
+    try:
+        return AngleLimits(values['angle_low'], values['angle_high'], values['max_step'])
+    except ValueError as err:
+        raise params.StartupError(str(err)) from None
+
+
+class ControllerNodeBase(Node):
+    """Subclasses set ``self.controller`` and call :meth:`start` at the end of __init__."""
+
+    uses_estimator = False
+
+    def __init__(self, name: str, defaults: dict, descriptions: dict) -> None:
+        super().__init__(name)
+        self.values = params.declare(self, {**COMMON_DEFAULTS, **defaults},
+                                     {**COMMON_DESCRIPTIONS, **descriptions},
+                                     frozenset(COMMON_DEFAULTS) | frozenset(defaults))
+        self.limits = limits_from(self.values)
+        self.period = int(self.values['period'])
+        self.controller: Controller | None = None
+        self._warn = itf.RateLimitedLog(self.get_logger().warning)
+        self._pending: np.ndarray | None = None
+        self._pending_since = 0.0
+        self._estimates: dict[int, float] = {}
+        self._last_estimate_round_trip: int | None = None
+        self._last_acted = -1
+        self.steps = 0
+
+    def start(self) -> None:
+        self._cmd_pub = self.create_publisher(Float64MultiArray, itf.TOPIC_ANGLES_CMD,
+                                              QOS[itf.TOPIC_ANGLES_CMD])
+        self._status_pub = self.create_publisher(Float64MultiArray, itf.TOPIC_CONTROLLER_STATUS,
+                                                 QOS[itf.TOPIC_CONTROLLER_STATUS])
+        self.create_subscription(Float64MultiArray, itf.TOPIC_STATE, self._on_state,
+                                 QOS[itf.TOPIC_STATE])
+        if self.uses_estimator:
+            self.create_subscription(Float64MultiArray, itf.TOPIC_ESTIMATE, self._on_estimate,
+                                     QOS[itf.TOPIC_ESTIMATE])
+        self.create_timer(0.02, self._check_timeout)
+
+    def _drop(self, topic: str, fault: str) -> None:
+        self._warn(f'{topic}:{fault.split()[0]}', f'dropped a message on {topic}: {fault}')
+
+    def _on_state(self, msg: Float64MultiArray) -> None:
+        fault = itf.state_fault(msg.data)
+        if fault is not None:
+            return self._drop(itf.TOPIC_STATE, fault)
+        round_trip = int(msg.data[0])
+        if round_trip % self.period or round_trip <= self._last_acted:
+            return None
+        self._pending = np.array(msg.data, float)
+        self._pending_since = self.get_clock().now().nanoseconds * 1e-9
+        self._try_act()
+        return None
+
+    def _on_estimate(self, msg: Float64MultiArray) -> None:
+        data = msg.data
+        fault = None
+        if len(data) < len(itf.ESTIMATE_FIELDS):
+            fault = f'expected at least {len(itf.ESTIMATE_FIELDS)} values, got {len(data)}'
+        elif not all(math.isfinite(x) and abs(x) < 1e300 for x in data):
+            fault = 'non-finite or out-of-range value'
+        elif data[0] < 0 or data[0] != int(data[0]):
+            fault = f'round_trip = {data[0]} is not a count'
+        if fault is not None:
+            return self._drop(itf.TOPIC_ESTIMATE, fault)
+        round_trip = int(data[0])
+        self._estimates[round_trip] = float(data[1])
+        self._last_estimate_round_trip = round_trip
+        while len(self._estimates) > 64:
+            self._estimates.pop(next(iter(self._estimates)))
+        self._try_act()
+        return None
+
+    def _check_timeout(self) -> None:
+        now = self.get_clock().now().nanoseconds * 1e-9
+        if (self._pending is not None
+                and now - self._pending_since > self.values['estimator_timeout']):
+            self._act(surrogate=None)
+
+    def _try_act(self) -> None:
+        if self._pending is None:
+            return
+        if not self.uses_estimator:
+            self._act(None)
+            return
+        surrogate = self._estimates.get(int(self._pending[0]))
+        if surrogate is not None:
+            self._act(surrogate)
+
+    def before_step(self, state: np.ndarray) -> None:
+        """Hook run just before the controller's step (the oracle reads its K here)."""
+
+    def _act(self, surrogate: float | None) -> None:
+        state, self._pending = self._pending, None
+        round_trip = int(state[0])
+        self._last_acted = round_trip
+        measurement = np.r_[state[1:3], state[6:10]]
+        self.before_step(state)
+        step: ControlStep = self.controller.step(measurement, surrogate)
+        if not np.isfinite(step.angles).all():  # never command a non-finite angle
+            self._warn('nonfinite', f'controller produced {step.angles}; holding the angles')
+            step = ControlStep(angles=measurement[2:6], mode='hold')
+        self._cmd_pub.publish(vector_message(itf.ANGLE_FIELDS, step.angles))
+        age = -1.0 if self._last_estimate_round_trip is None else (
+            (round_trip - self._last_estimate_round_trip) / self.period)
+        valid = math.isfinite(step.surrogate)
+        error = step.prediction_error if math.isfinite(step.prediction_error) else -1.0
+        status = [round_trip, step.mode_index, error, step.iterations, step.latency_ms,
+                  step.surrogate if valid else 0.0, float(valid), age]
+        if surrogate is None and self.uses_estimator:
+            self._warn('estimator', f'no estimate for round trip {round_trip} within '
+                       f"{self.values['estimator_timeout']:g} s: mode {step.mode}")
+        self._status_pub.publish(vector_message(
+            [*itf.CONTROLLER_STATUS_FIELDS,
+             *(f'predicted_O{i + 1}' for i in range(step.predicted_objective.size))],
+            [*status, *np.nan_to_num(step.predicted_objective, nan=0.0, posinf=0.0,
+                                     neginf=0.0)]))
+        self.steps += 1

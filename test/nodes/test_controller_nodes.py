@@ -1,0 +1,137 @@
+"""The estimator and controller nodes as real processes, probed over ROS."""
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dlmpc_ros import interfaces as itf
+from dlmpc_ros.control.step import MODES
+from dlmpc_ros.learning.checkpoint import load_checkpoint
+from test.nodes.rosutil import NodeProcess, Probe
+
+ESTIMATOR = 'dlmpc_ros.nodes.vae_estimator_node'
+MPC = 'dlmpc_ros.nodes.mpc_controller_node'
+BASELINE = 'dlmpc_ros.nodes.baseline_controller_node'
+LASER = 'dlmpc_ros.nodes.laser_sim_node'
+ROOT = Path(__file__).resolve().parents[2]
+ANGLES = [-0.39, -0.25, 0.52, -0.14]
+
+
+@pytest.fixture
+def probe(ros_env):
+    p = Probe()
+    yield p
+    p.close()
+
+
+def _state(round_trip, e=3.2, m=18.0, angles=ANGLES):
+    return [round_trip, e, m, e / m, e, 1.0, *angles]
+
+
+def _start(module, ros_env, tmp_path, *params):
+    args = []
+    for p in params:
+        args += ['-p', p]
+    return NodeProcess(module, ros_env, tmp_path / f'{module.rsplit(".", 1)[1]}.log', *args)
+
+
+def test_estimator_publishes_one_finite_estimate_per_period_and_drops_bad_states(
+        ros_env, tmp_path, probe):
+    estimates = probe.listen(itf.TOPIC_ESTIMATE)
+    node = _start(ESTIMATOR, ros_env, tmp_path, 'period:=5')
+    try:
+        probe.wait_matched(itf.TOPIC_STATE)
+        for bad in ([], [1.0, 2.0], [5, math.nan, 1, 1, 1, 1, 0, 0, 0, 0],
+                    [5.5, *_state(0)[1:]], [-5, *_state(0)[1:]]):
+            probe.publish(itf.TOPIC_STATE, bad)
+        for r in range(1, 31):
+            probe.publish(itf.TOPIC_STATE, _state(r), itf.STATE_FIELDS)
+        probe.spin_until(lambda: len(estimates) >= 6, 60, '6 estimates')
+        rows = [list(m.data) for m in estimates]
+        assert [row[0] for row in rows] == [5, 10, 15, 20, 25, 30]
+        assert all(map(math.isfinite, sum(rows, [])))
+        assert estimates[0].layout.dim[0].label.startswith('round_trip,surrogate,latency_ms,z1')
+        assert node.proc.poll() is None
+    finally:
+        assert node.stop() == 0
+    assert 'dropped a message on /laser/state' in node.output()
+
+
+def test_mpc_controller_acts_each_period_holds_without_estimator_and_never_reads_true_k(
+        ros_env, tmp_path, probe):
+    commands = probe.listen(itf.TOPIC_ANGLES_CMD)
+    status = probe.listen(itf.TOPIC_CONTROLLER_STATUS)
+    node = _start(MPC, ros_env, tmp_path, 'period:=10', 'estimator_timeout:=0.2',
+                  'max_step:=0.1')
+    try:
+        probe.wait_matched(itf.TOPIC_STATE)
+        probe.wait_matched(itf.TOPIC_ESTIMATE)
+        probe.spin_until(lambda: 'mpc_controller' in probe.node.get_node_names(), 30, 'node')
+        topics = {name for name, _ in probe.node.get_subscriber_names_and_types_by_node(
+            'mpc_controller', '/')}
+        assert topics == {itf.TOPIC_STATE, itf.TOPIC_ESTIMATE}
+        # With estimates: the inner loop maps the surrogate to angles, one step at a time.
+        for r in range(1, 31):
+            probe.publish(itf.TOPIC_STATE, _state(r), itf.STATE_FIELDS)
+            if r % 10 == 0:
+                probe.publish(itf.TOPIC_ESTIMATE, [r, 0.2, 0.5, 0.2, 0.1])
+        probe.spin_until(lambda: len(status) >= 3, 60, '3 decisions')
+        rows = [list(m.data) for m in status]
+        assert [row[0] for row in rows] == [10, 20, 30]
+        assert [MODES[int(row[1])] for row in rows] == ['inner'] * 3
+        assert all(row[6] == 1.0 and row[5] == pytest.approx(0.2) for row in rows)
+        for m in commands:
+            assert np.abs(np.array(m.data) - ANGLES).max() <= 0.1 + 1e-9
+        # A silent estimator: the controller acts after the timeout, holds, and says so.
+        probe.publish(itf.TOPIC_STATE, _state(40), itf.STATE_FIELDS)
+        probe.spin_until(lambda: len(status) >= 4, 30, 'a decision without estimate')
+        row = list(status[3].data)
+        assert MODES[int(row[1])] == 'hold' and row[6] == 0.0 and row[7] == 1.0
+        assert list(commands[-1].data) == pytest.approx(ANGLES)
+        assert all(map(math.isfinite, sum((list(m.data) for m in status), [])))
+    finally:
+        assert node.stop() == 0
+    for kind in ('kmap', 'mprnn'):  # nothing the controller loads holds K
+        payload = load_checkpoint(ROOT / 'models' / f'{kind}.pt', kind)
+        names = ' '.join([*payload['state_dict'], *payload['config']]).lower()
+        assert 'birefringence' not in names and 'truth' not in names
+
+
+@pytest.mark.parametrize('module,params,message', [
+    (MPC, ['models_dir:=/nonexistent'], 'dlmpc-train'),
+    (MPC, ['max_step:=-1.0'], 'max_step'),
+    (BASELINE, ['controller:=teleport'], 'controller must be one of'),
+    (ESTIMATOR, ['period:=0'], 'period'),
+])
+def test_bad_settings_stop_the_node_with_one_clear_message(ros_env, module, params, message):
+    args = [a for p in params for a in ('-p', p)]
+    proc = subprocess.run([sys.executable, '-m', module, '--ros-args', *args], env=ros_env,
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    out = proc.stdout + proc.stderr
+    assert message in out and 'Traceback' not in out
+
+
+def test_lockstep_laser_waits_for_each_command(ros_env, tmp_path, probe):
+    states = probe.listen(itf.TOPIC_STATE)
+    probe.publisher(itf.TOPIC_ANGLES_CMD)
+    node = _start(LASER, ros_env, tmp_path, 'wait_for_subscribers:=1', 'lockstep_period:=10',
+                  'lockstep_timeout:=30.0')
+    try:
+        probe.wait_matched(itf.TOPIC_ANGLES_CMD)
+        probe.spin_until(lambda: len(states) >= 10, 60, '10 states')
+        for _ in range(20):
+            probe.executor.spin_once(timeout_sec=0.05)
+        assert len(states) == 10, 'the laser went on without a command'
+        probe.publish(itf.TOPIC_ANGLES_CMD, [0.1, 0.2, 0.3, 0.4], itf.ANGLE_FIELDS)
+        probe.spin_until(lambda: len(states) >= 20, 30, '10 more states')
+        for _ in range(20):
+            probe.executor.spin_once(timeout_sec=0.05)
+        assert len(states) == 20
+        assert list(states[10].data)[6:] == pytest.approx([0.1, 0.2, 0.3, 0.4])
+    finally:
+        assert node.stop() == 0
