@@ -1,0 +1,38 @@
+"""The in-process closed loop: order of events, limits, reproducibility."""
+
+import numpy as np
+
+from dlmpc_ros.control.baselines import FixedBestController, OracleController
+from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.core.config import CavityConfig
+from dlmpc_ros.core.drift import make_scenario
+from dlmpc_ros.evaluation.closed_loop import random_initial_angles, run_closed_loop
+
+SMALL = CavityConfig(points=64, steps_per_round_trip=8)
+
+
+def test_commands_apply_from_the_next_round_trip_at_servo_speed():
+    target = np.array([0.5, -0.5, 0.2, 0.1])
+    ctrl = FixedBestController(target, AngleLimits(max_step=0.1))
+    record = run_closed_loop(ctrl, make_scenario('constant', offset=0.1), 60, period=10,
+                             initial_angles=np.zeros(4), cavity_config=SMALL)
+    assert record.O.size == 60 and list(record.control_round_trip) == [10, 20, 30, 40, 50, 60]
+    np.testing.assert_array_equal(record.angles[:10], 0.0)  # until the first decision
+    np.testing.assert_allclose(record.angles[10], [0.1, -0.1, 0.1, 0.1])
+    steps = np.abs(np.diff(record.angles, axis=0)).max(axis=1)
+    assert steps.max() <= 0.1 + 1e-12
+    np.testing.assert_allclose(record.angles[-1], target)
+
+
+def test_same_seed_same_run_and_the_oracle_sees_the_true_k():
+    scenario = make_scenario('steps', times=[20.0], values=[0.2])
+    table_k = np.array([-0.3, 0.0, 0.3])
+    table = np.array([[0.0, 0.0, 0.0, 0.0], [0.1, 0.1, 0.1, 0.1], [0.3, 0.3, 0.3, 0.3]])
+    limits = AngleLimits(max_step=10.0)
+    runs = [run_closed_loop(OracleController(table_k, table, limits), scenario, 40, 10,
+                            random_initial_angles(3), SMALL) for _ in range(2)]
+    np.testing.assert_array_equal(runs[0].O, runs[1].O)
+    np.testing.assert_array_equal(runs[0].K[:19], 0.0)
+    np.testing.assert_array_equal(runs[0].K[19:], 0.2)
+    # K = 0 -> row 1 until round trip 20; from K = 0.2 on -> row 2 (nearest grid K)
+    np.testing.assert_allclose(runs[0].angles[-1], 0.3)

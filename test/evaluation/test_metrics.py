@@ -1,0 +1,56 @@
+"""Closed-loop metrics on hand-made records, where every figure is known."""
+
+import numpy as np
+import pytest
+
+from dlmpc_ros.control.step import MODES
+from dlmpc_ros.evaluation.metrics import MetricSettings, run_metrics
+from dlmpc_ros.evaluation.record import RunRecord
+
+ENVELOPE = {'K': np.array([-0.3, 0.3]), 'O_star': np.array([0.2, 0.2])}
+
+
+def _record(o, k=None, latency=(1.0, 2.0, 3.0)):
+    n = len(o)
+    return RunRecord(round_trip=np.arange(1, n + 1), K=np.zeros(n) if k is None else k,
+                     E=np.ones(n), M=np.ones(n), O=np.asarray(o, float),
+                     angles=np.zeros((n, 4)), control_round_trip=np.arange(len(latency)),
+                     mode=np.full(len(latency), MODES.index('outer')),
+                     surrogate=np.zeros(len(latency)),
+                     prediction_error=np.zeros(len(latency)),
+                     iterations=np.ones(len(latency), int), latency_ms=np.array(latency))
+
+
+def test_ratio_acquisition_and_locked_fraction():
+    o = np.r_[np.zeros(100), np.full(800, 0.2), np.full(100, 0.05)]
+    m = run_metrics(_record(o), ENVELOPE, MetricSettings(hold=50))
+    assert m['mean_O'] == pytest.approx(0.165) and m['oracle_ratio'] == pytest.approx(0.825)
+    assert m['acquisition_round_trips'] == 100
+    assert m['locked_fraction'] == pytest.approx(800 / 900)
+    assert m['step_latency_ms_median'] == 2.0
+    assert m['mode_fractions'] == {'outer': 1.0}
+
+
+def test_never_locked_and_blow_ups_count_as_zero():
+    o = np.full(500, 0.05)
+    o[10] = np.nan
+    m = run_metrics(_record(o), ENVELOPE, MetricSettings(hold=50))
+    assert m['acquisition_round_trips'] is None and m['locked_fraction'] == 0.0
+    assert m['blown_up_round_trips'] == 1
+    assert m['mean_O'] == pytest.approx(0.05 * 499 / 500)
+
+
+def test_recovery_after_a_step_in_k():
+    k = np.r_[np.zeros(500), np.full(500, 0.2)]
+    o = np.r_[np.full(500, 0.2), np.zeros(120), np.full(380, 0.2)]
+    m = run_metrics(_record(o, k), ENVELOPE, MetricSettings(hold=50))
+    assert m['steps_in_K'] == 1
+    assert m['recovery_round_trips'] == [120]
+
+
+def test_record_round_trips_through_a_file(tmp_path):
+    record = _record(np.linspace(0, 0.2, 30))
+    record.meta = {'controller': 'x'}
+    back = RunRecord.load(record.save(tmp_path / 'r.npz'))
+    np.testing.assert_array_equal(back.O, record.O)
+    assert back.meta == {'controller': 'x'} and back.mode_names == ['outer'] * 3
