@@ -8,7 +8,7 @@ OUT    ?= out
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export ROS_LOG_DIR ?= $(CURDIR)/$(OUT)/ros-log
 
-.PHONY: venv test demo bench lint data models clean
+.PHONY: venv test demo evaluate bench lint data models clean
 
 venv: $(STAMP)
 
@@ -22,9 +22,19 @@ test: $(STAMP)
 	$(PY) -m pytest -q test
 
 demo: $(STAMP)
-	$(VENV)/bin/bringup --scenario sinusoidal --scenario-param period=2000 \
-	    --round-trips 6000 --csv $(OUT)/demo/run.csv --plot $(OUT)/demo/run.png \
+	$(VENV)/bin/bringup --controller dlmpc --scenario sinusoidal \
+	    --scenario-param amplitude=0.25 --scenario-param period=4000 \
+	    --round-trips 8000 --csv $(OUT)/demo/run.csv --plot $(OUT)/demo/run.png \
 	    --log-dir $(OUT)/demo/logs
+
+# The closing table of the closed-loop issue: every controller on every scenario, in one
+# process (about 10 minutes on 2 cores); drop --fast to run each through the node graph.
+SEEDS ?= 1 2 3
+evaluate: $(STAMP)
+	$(VENV)/bin/dlmpc-evaluate --fast --round-trips 20000 \
+	    $(foreach s,sinusoidal chirp random_walk steps,--scenario $(s)) \
+	    $(foreach c,dlmpc esc passive fixed_best oracle,--controller $(c)) \
+	    $(foreach s,$(SEEDS),--seed $(s)) --out $(OUT)/evaluate
 
 bench: $(STAMP)
 	$(PY) bench/bench_cavity.py --out $(OUT)/bench
