@@ -44,6 +44,7 @@ setup(
             f'dlmpc-data = {PACKAGE}.cli.data:main',
             f'dlmpc-train = {PACKAGE}.cli.train:main',
             f'dlmpc-evaluate = {PACKAGE}.cli.evaluate:main',
+            f'dlmpc-check-laser = {PACKAGE}.cli.check_laser:main',
         ],
     },
 )
