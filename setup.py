@@ -25,6 +25,7 @@ setup(
         'rocket-fft>=0.2.5',
         'matplotlib>=3.7',
         'pyyaml',
+        'rosbags>=0.11,<0.12',
     ],
     extras_require={'ml': ['torch>=2.2,<3', 'tqdm>=4.60']},
     zip_safe=True,
@@ -45,6 +46,8 @@ setup(
             f'dlmpc-train = {PACKAGE}.cli.train:main',
             f'dlmpc-evaluate = {PACKAGE}.cli.evaluate:main',
             f'dlmpc-check-laser = {PACKAGE}.cli.check_laser:main',
+            f'recorder = {PACKAGE}.nodes.recorder_node:main',
+            f'dlmpc-bag = {PACKAGE}.cli.bag:main',
         ],
     },
 )

@@ -1,0 +1,147 @@
+"""dlmpc-bag: inspect, repair and export the bags that the recorder node writes.
+
+``dlmpc-bag info DIR`` lists topics, counts and duration, and checks the round-trip index
+of ``/laser/state`` (first, last, gaps, duplicates). ``dlmpc-bag repair DIR`` makes a bag
+whose recorder was killed readable again. ``dlmpc-bag csv DIR OUT.csv`` writes the
+``/laser/state`` rows joined by round trip with the K of ``/laser/sim_truth``, in the
+columns of the bringup's run CSV (K is NaN without a simulator).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import sys
+import time
+from pathlib import Path
+
+from dlmpc_ros import interfaces as itf
+from dlmpc_ros.recording.reader import check_round_trips, read_bag, read_metadata
+from dlmpc_ros.recording.repair import find_mcap, repair
+from dlmpc_ros.recording.writer import BagError
+
+#: Gaps listed one by one by ``info`` (the rest are counted).
+SHOWN_GAPS = 10
+
+
+def _time(ns: int) -> str:
+    seconds, rest = divmod(ns, 1_000_000_000)
+    text = time.strftime('%Y-%m-%d %H:%M:%S', time.gmtime(seconds))
+    return f'{text}.{rest // 1_000_000:03d} UTC ({ns / 1e9:.3f})'
+
+
+def info(bag: Path) -> int:
+    meta = read_metadata(bag)
+    mcap = find_mcap(bag)
+    count = meta['message_count']
+    print(f'bag:        {bag}')
+    print(f'file:       {mcap.name} ({mcap.stat().st_size / 2**20:.2f} MiB), storage '
+          f'{meta["storage_identifier"]}, metadata version {meta["version"]}, '
+          f'ros_distro {meta.get("ros_distro", "?")}')
+    if count:
+        start = meta['starting_time']['nanoseconds_since_epoch']
+        duration = meta['duration']['nanoseconds']
+        print(f'duration:   {duration / 1e9:.3f} s')
+        print(f'start:      {_time(start)}')
+        print(f'end:        {_time(start + duration)}')
+    print(f'messages:   {count}')
+    topics = [(t['topic_metadata']['name'], t['topic_metadata']['type'], t['message_count'])
+              for t in meta['topics_with_message_count']]
+    width = max((len(name) for name, _, _ in topics), default=0)
+    print('topics:' + ('' if topics else '     none'))
+    for name, msgtype, n in topics:
+        print(f'  {name:<{width}}  {n:>9d}  {msgtype}')
+    if itf.TOPIC_STATE in {name for name, _, _ in topics}:
+        state = read_bag(bag, [itf.TOPIC_STATE])[itf.TOPIC_STATE]
+        check = check_round_trips(state.data[:, 0])
+        print(f'{itf.TOPIC_STATE} round trips: {_round_trip_summary(check)}')
+        for start, end in check.gaps[:SHOWN_GAPS]:
+            span = f'{start}' if start == end else f'{start}..{end}'
+            print(f'  missing {span} ({end - start + 1})')
+        if len(check.gaps) > SHOWN_GAPS:
+            print(f'  ... and {len(check.gaps) - SHOWN_GAPS} more gaps')
+    return 0
+
+
+def _round_trip_summary(check) -> str:
+    if not check.count:
+        return 'none'
+    text = f'{check.first} .. {check.last} in {check.count} messages'
+    if check.contiguous:
+        return text + ', contiguous'
+    problems = []
+    if check.gaps:
+        problems.append(f'{check.missing} missing in {len(check.gaps)} gaps')
+    if check.duplicates:
+        problems.append(f'{check.duplicates} duplicates')
+    if check.out_of_order:
+        problems.append(f'{check.out_of_order} out of order')
+    return f'{text}: ' + ', '.join(problems)
+
+
+def repair_command(bag: Path) -> int:
+    report = repair(bag)
+    if report.rewritten:
+        print(f'{report.mcap}: unfinished; rewrote {report.message_count} messages from '
+              f'{report.chunks} complete chunks ({report.dropped_bytes} bytes at the end '
+              'could not be read)')
+    else:
+        print(f'{report.mcap}: finished, {report.message_count} messages; nothing lost')
+    for topic, n in report.counts.items():
+        print(f'  {topic}  {n}')
+    print(f'wrote {bag / "metadata.yaml"}')
+    return 0
+
+
+def csv_command(bag: Path, out: Path) -> int:
+    from dlmpc_ros.ros.monitor import write_header  # imports rclpy: only for this command
+
+    names = {t['topic_metadata']['name'] for t in read_metadata(bag)['topics_with_message_count']}
+    wanted = [itf.TOPIC_STATE] + ([itf.TOPIC_SIM_TRUTH] if itf.TOPIC_SIM_TRUTH in names else [])
+    topics = read_bag(bag, wanted)
+    state = topics[itf.TOPIC_STATE]
+    if state.fields and state.fields != itf.STATE_FIELDS:
+        raise BagError(f'{itf.TOPIC_STATE} in {bag} has fields {state.fields}, expected '
+                       f'{itf.STATE_FIELDS}')
+    truth = {}
+    if itf.TOPIC_SIM_TRUTH in topics:
+        data = topics[itf.TOPIC_SIM_TRUTH].data
+        truth = dict(zip(data[:, 0].astype(int).tolist(), data[:, 1].tolist()))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    known = 0
+    with open(out, 'w', newline='') as handle:
+        writer = csv.writer(handle)
+        write_header(writer)
+        for row in state.data.tolist():
+            k = truth.get(int(row[0]), math.nan)
+            known += k == k
+            writer.writerow([*(repr(x) for x in row), repr(k)])
+    print(f'wrote {len(state)} rows to {out} (K known for {known})')
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog='dlmpc-bag', description=__doc__.split('\n\n')[0])
+    sub = p.add_subparsers(dest='command', required=True)
+    sub.add_parser('info', help='topics, counts, duration and round-trip gaps of a bag') \
+        .add_argument('bag', type=Path, help='bag directory')
+    sub.add_parser('repair', help='make a bag whose recorder was killed readable') \
+        .add_argument('bag', type=Path, help='bag directory')
+    export = sub.add_parser('csv', help='/laser/state joined with the true K, as CSV')
+    export.add_argument('bag', type=Path, help='bag directory')
+    export.add_argument('out', type=Path, help='CSV file to write')
+    args = p.parse_args(argv)
+    try:
+        if args.command == 'info':
+            return info(args.bag)
+        if args.command == 'repair':
+            return repair_command(args.bag)
+        return csv_command(args.bag, args.out)
+    except (BagError, OSError) as err:
+        print(f'dlmpc-bag: {err}', file=sys.stderr)
+        return 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,75 @@
+"""dlmpc-bag info / repair / csv on bags written here (no ROS graph)."""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+
+import numpy as np
+
+from dlmpc_ros import interfaces as itf
+from dlmpc_ros.cli.bag import main
+from dlmpc_ros.recording import BagWriter, read_bag
+from dlmpc_ros.ros_csv import read_run_csv
+from test.recording.bagutil import serialize, state, write_run
+
+TOPICS = (itf.TOPIC_SIM_TRUTH, itf.TOPIC_STATE, itf.TOPIC_OBJECTIVE)
+
+
+def _writer(path):
+    writer = BagWriter(path)
+    for topic in TOPICS:
+        writer.add_topic(topic)
+    return writer
+
+
+def test_info_lists_topics_and_the_round_trip_gaps(tmp_path, capsys):
+    with _writer(tmp_path / 'run') as writer:
+        write_run(writer, [*range(1, 51), *range(61, 101)])
+        writer.write(itf.TOPIC_STATE, serialize(itf.STATE_FIELDS, state(100)), 2 * 10**18)
+    assert main(['info', str(tmp_path / 'run')]) == 0
+    out = capsys.readouterr().out
+    assert 'metadata version 9' in out and 'ros_distro jazzy' in out
+    assert 'messages:   271' in out
+    assert f'{itf.TOPIC_STATE}             91  std_msgs/msg/Float64MultiArray' in out
+    assert ('/laser/state round trips: 1 .. 100 in 91 messages: 10 missing in 1 gaps, '
+            '1 duplicates') in out
+    assert 'missing 51..60 (10)' in out
+
+
+def test_csv_has_the_bringup_run_columns_and_joins_k_by_round_trip(tmp_path, capsys):
+    with _writer(tmp_path / 'run') as writer:
+        write_run(writer, range(1, 21))
+        # A state whose true K never came: K is NaN, as in the bringup's CSV.
+        writer.write(itf.TOPIC_STATE, serialize(itf.STATE_FIELDS, state(21)), 2 * 10**18)
+    out = tmp_path / 'csv' / 'run.csv'
+    assert main(['csv', str(tmp_path / 'run'), str(out)]) == 0
+    assert 'wrote 21 rows' in capsys.readouterr().out
+    with open(out) as handle:
+        header = next(csv.reader(handle))
+    assert header == [*itf.STATE_FIELDS, 'K']
+    columns = read_run_csv(out)
+    np.testing.assert_array_equal(columns['round_trip'], np.arange(1, 22))
+    np.testing.assert_array_equal(columns['K'][:20], 0.01 * np.arange(1, 21))
+    assert math.isnan(columns['K'][20])
+    states = read_bag(tmp_path / 'run')[itf.TOPIC_STATE]
+    np.testing.assert_array_equal(columns['M'], states.column('M'))
+
+
+def test_repair_command_and_errors_on_an_unfinished_bag(tmp_path, capsys):
+    bag = tmp_path / 'run'
+    with _writer(bag) as writer:
+        write_run(writer, range(1, 3001))
+    (bag / 'metadata.yaml').unlink()
+    mcap = bag / 'run.mcap'
+    os.truncate(mcap, mcap.stat().st_size // 2)
+    assert main(['info', str(bag)]) == 1
+    assert 'dlmpc-bag repair' in capsys.readouterr().err
+    assert main(['repair', str(bag)]) == 0
+    out = capsys.readouterr().out
+    assert 'unfinished; rewrote' in out and 'metadata.yaml' in out
+    assert main(['info', str(bag)]) == 0
+    assert 'contiguous' in capsys.readouterr().out
+    assert main(['repair', str(tmp_path / 'nothing')]) == 1
+    assert 'not a bag directory' in capsys.readouterr().err
