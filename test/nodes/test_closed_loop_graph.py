@@ -1,5 +1,6 @@
 """The closed loop through the real node graph: lockstep reproduces the in-process loop
-to floating-point noise, and DL-MPC holds the laser better than the passive setting after a step in K."""
+to floating-point noise, and DL-MPC holds the laser better than the passive setting
+after a step in K."""
 
 import json
 import subprocess
