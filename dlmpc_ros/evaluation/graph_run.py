@@ -43,7 +43,7 @@ def run_graph(out_dir: Path, controller: str, scenario: str, settings: list[str]
     csv_path = out_dir / 'run.csv'
     cmd = [sys.executable, '-m', 'dlmpc_ros.bringup', '--controller', controller,
            '--scenario', scenario, '--round-trips', str(round_trips), '--period', str(period),
-           '--initial-angles', ','.join(repr(float(a)) for a in initial_angles),
+           '--initial-angles=' + ','.join(repr(float(a)) for a in initial_angles),
            '--csv', str(csv_path), '--log-dir', str(out_dir / 'logs'),
            '--domain-id', str(domain_id)]
     for item in settings:
