@@ -1,8 +1,9 @@
 """dlmpc-train: train, measure and ship the models (estimator, map, predictor).
 
-``dlmpc-train all`` runs ``vae``, ``kmap`` and ``mprnn`` in order on the datasets of
-``dlmpc-data`` and writes ``models/{vae,kmap,mprnn}.pt``, ``models/metrics.json``,
-``models/figures/`` and ``models/MODEL_CARD.md``. ``--quick`` trains tiny models for tests.
+``dlmpc-train all`` runs ``vae``, ``kmap``, ``mprnn`` and ``baselines`` in order on the
+datasets of ``dlmpc-data`` and writes ``models/{vae,kmap,mprnn}.pt``, the baseline angle
+tables ``models/oracle.npz`` (+ ``.json``), ``models/metrics.json``, ``models/figures/``
+and ``models/MODEL_CARD.md``. ``--quick`` trains tiny models for tests.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from dlmpc_ros.learning.pipeline import (Paths, train_kmap_stage, train_vae_stag
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog='dlmpc-train', description=__doc__.split('\n\n')[0])
-    p.add_argument('stage', choices=('all', 'vae', 'kmap', 'mprnn'))
+    p.add_argument('stage', choices=('all', 'vae', 'kmap', 'mprnn', 'baselines'))
     p.add_argument('--data-dir', type=Path, default=Path('data'))
     p.add_argument('--models-dir', type=Path, default=Path('models'))
     p.add_argument('--seed', type=int, default=0)
@@ -49,6 +50,14 @@ def main(argv: list[str] | None = None) -> int:
             print(f"mprnn: horizon-{len(metrics['rmse_O_model'])} O error / persistence = "
                   f"{metrics['rmse_O_model'][-1] / metrics['rmse_O_persistence'][-1]:.3f}",
                   flush=True)
+        if args.stage in ('all', 'baselines'):
+            from dlmpc_ros.learning.baselines import train_baselines_stage
+            metrics = train_baselines_stage(paths, quick=args.quick, show_progress=show)
+            write_metrics(paths, 'baselines', metrics)
+            first = next(iter(metrics['closed_loop']))
+            ratios = {name: round(r['oracle_ratio'], 3)
+                      for name, r in metrics['closed_loop'][first].items()}
+            print(f'baselines: closed-loop O/O* on {first}: {ratios}', flush=True)
     except (FileNotFoundError, ModelFileError, ValueError) as err:
         print(f'dlmpc-train: {err}', file=sys.stderr)
         return 2
