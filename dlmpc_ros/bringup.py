@@ -5,8 +5,13 @@ simulator, the drift injector and the controller chosen by ``--controller`` (``d
 adds the VAE estimator). Waits until the graph is connected (state and K messages
 arrive), prints a live status line, optionally writes every round trip (and every
 control decision) to CSV and plots it, and stops after ``--round-trips`` or Ctrl-C.
-Exit code: 0 on a clean run, 1 if a node died or did not stop cleanly, 2 for bad
-arguments or a graph that never connected.
+With ``--respawn`` a node that exits unexpectedly (crash, kill) is restarted, with a line
+on standard error, at most ``--max-restarts`` times a minute; by default every node but
+the laser simulator, whose restart would begin a new run at round trip 1.
+Each node's log is ``<log dir>/<node>.log`` and the pid of its current process is in
+``<log dir>/<node>.pid`` while the graph runs.
+Exit code: 0 on a clean run, 1 if a node died (and was not restarted) or did not stop
+cleanly, 2 for bad arguments or a graph that never connected.
 """
 
 from __future__ import annotations
@@ -88,6 +93,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help='seconds to wait for the graph to connect (default: %(default)s)')
     p.add_argument('--stop-timeout', type=float, default=10.0,
                    help='seconds a node gets to exit after SIGINT (default: %(default)s)')
+    p.add_argument('--respawn', nargs='?', const='', metavar='NODE,...',
+                   help='restart nodes that exit unexpectedly: the named ones, or without a '
+                        'list every node but laser_sim')
+    p.add_argument('--max-restarts', type=int, default=3,
+                   help='most restarts of one node per minute before the run stops '
+                        '(default: %(default)s)')
     args = p.parse_args(argv)
     args.nodes = [n.strip() for n in args.nodes.split(',') if n.strip()]
     args.nodes += [n for n in controller_nodes(args.controller) if n not in args.nodes]
@@ -96,6 +107,17 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         p.error(f'unknown node(s) {unknown}; known: {sorted(NODES)}')
     if not 0 <= args.domain_id <= 232:
         p.error('--domain-id must be in 0..232')
+    if args.respawn is None:
+        args.respawn = []
+    elif args.respawn == '':
+        args.respawn = [n for n in args.nodes if n != 'laser_sim']
+    else:
+        args.respawn = [n.strip() for n in args.respawn.split(',') if n.strip()]
+        if not set(args.respawn) <= set(args.nodes):
+            p.error(f'--respawn names node(s) not started: '
+                    f'{sorted(set(args.respawn) - set(args.nodes))}; started: {args.nodes}')
+    if args.max_restarts < 0:
+        p.error('--max-restarts must be >= 0')
     try:
         args.scenario_settings = parse_settings(args.scenario_param)
         if 'path' in args.scenario_settings:  # nodes may run elsewhere than here
@@ -164,8 +186,9 @@ def build_graph(args: argparse.Namespace, env: dict[str, str], log_dir: Path) ->
                 # passive: the setting a person tuned for the initial K, then left alone
                 overrides.update(controller=args.controller,
                                  initial_birefringence=float(scenario(1)))
-        nodes.append(NodeProcess(name, module, config_file(params), overrides))
-    return NodeGraph(nodes, env, log_dir)
+        nodes.append(NodeProcess(name, module, config_file(params), overrides,
+                                 respawn=name in args.respawn))
+    return NodeGraph(nodes, env, log_dir, max_restarts=args.max_restarts)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -177,13 +200,17 @@ def main(argv: list[str] | None = None) -> int:
     graph = build_graph(args, dict(os.environ), log_dir)
     print(f'bringup: domain {args.domain_id}, discovery {args.discovery}, controller '
           f'{args.controller}{" (lockstep)" if args.lockstep else ""}, nodes '
-          f'{", ".join(args.nodes)}, logs in {log_dir}', flush=True)
+          f'{", ".join(args.nodes)}, logs in {log_dir}'
+          f'{", respawn " + ",".join(args.respawn) if args.respawn else ""}', flush=True)
     from dlmpc_ros.ros.monitor import run_monitor  # rclpy only from here on
     graph.start()
     try:
         code = run_monitor(args, graph)
     finally:
         exit_codes = graph.stop(args.stop_timeout)
+    restarts = {n.name: n.restart_count for n in graph.nodes if n.restart_count}
+    if restarts:
+        print(f'bringup: nodes restarted during the run (times): {restarts}', flush=True)
     unclean = {name: c for name, c in exit_codes.items() if c != 0}
     if unclean:
         print(f'bringup: nodes that did not exit cleanly: {unclean}', file=sys.stderr)

@@ -78,18 +78,22 @@ def vector_fault(data: Sequence[float], fields: Sequence[str], limit: float) -> 
     return None
 
 
+#: Largest round trip a float64 holds exactly (2**53); anything above is not a count.
+MAX_ROUND_TRIP = 2 ** 53
+
+
 def state_fault(data: Sequence[float]) -> str | None:
     """What is wrong with a /laser/state vector (lengths, non-finite values, a round trip
-    that is not a count), or None."""
+    that is not a count in 0..MAX_ROUND_TRIP), or None."""
     fault = vector_fault(data, STATE_FIELDS, 1e300)
-    if fault is None and (data[0] < 0 or data[0] != int(data[0])):
+    if fault is None and not (0 <= data[0] <= MAX_ROUND_TRIP and data[0] == int(data[0])):
         fault = f'round_trip = {data[0]} is not a count'
     return fault
 
 
 class RateLimitedLog:
-    """Log each distinct (topic, fault kind) at most once per ``period`` seconds, with a
-    count of the messages suppressed in between.
+    """Log each distinct key (the nodes use the topic of a dropped message) at most once per
+    ``period`` seconds, with a count of the messages suppressed in between.
 
     Parameters
     ----------

@@ -12,7 +12,7 @@ import sys
 
 from rclpy.experimental import EventsExecutor
 
-from dlmpc_ros.control.dlmpc import DLMPCConfig
+from dlmpc_ros.control.dlmpc import DLMPCConfig, DLMPCController
 from dlmpc_ros.control.factory import load_dlmpc
 from dlmpc_ros.learning.checkpoint import ModelFileError
 from dlmpc_ros.paths import models_dir
@@ -54,6 +54,10 @@ class MPCControllerNode(ControllerNodeBase):
         except (ModelFileError, FileNotFoundError) as err:
             raise params.StartupError(str(err)) from None
         self.start()
+
+    def fresh_controller(self) -> DLMPCController:
+        old = self.controller
+        return DLMPCController(old.kmap, old.model, old.config)
 
 
 def main(args: list[str] | None = None) -> None:

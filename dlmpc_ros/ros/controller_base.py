@@ -82,17 +82,18 @@ class ControllerNodeBase(Node):
         self.create_timer(0.02, self._check_timeout)
 
     def _drop(self, topic: str, fault: str) -> None:
-        self._warn(f'{topic}:{fault.split()[0]}', f'dropped a message on {topic}: {fault}')
+        self._warn(topic, f'dropped a message on {topic}: {fault}')
 
     def _on_state(self, msg: Float64MultiArray) -> None:
         fault = itf.state_fault(msg.data)
         if fault is not None:
             return self._drop(itf.TOPIC_STATE, fault)
         round_trip = int(msg.data[0])
-        if round_trip % self.period or round_trip <= self._last_acted:
+        if round_trip % self.period or round_trip == self._last_acted:
             return None
+        if self._pending is None:  # the timeout runs from the oldest unanswered state
+            self._pending_since = self.get_clock().now().nanoseconds * 1e-9
         self._pending = np.array(msg.data, float)
-        self._pending_since = self.get_clock().now().nanoseconds * 1e-9
         self._try_act()
         return None
 
@@ -134,6 +135,12 @@ class ControllerNodeBase(Node):
     def before_step(self, state: np.ndarray) -> None:
         """Hook run just before the controller's step (the oracle reads its K here)."""
 
+    def fresh_controller(self) -> Controller:
+        """A controller without memory of past periods, to replace one whose output went
+        non-finite (a measurement it could not digest may sit in its history); by default
+        the same one."""
+        return self.controller
+
     def _act(self, surrogate: float | None) -> None:
         state, self._pending = self._pending, None
         round_trip = int(state[0])
@@ -142,8 +149,11 @@ class ControllerNodeBase(Node):
         self.before_step(state)
         step: ControlStep = self.controller.step(measurement, surrogate)
         if not np.isfinite(step.angles).all():  # never command a non-finite angle
-            self._warn('nonfinite', f'controller produced {step.angles}; holding the angles')
-            step = ControlStep(angles=measurement[2:6], mode='hold')
+            self._warn('nonfinite', f'controller produced {step.angles}; holding the angles '
+                       'and starting the controller afresh')
+            step = ControlStep(angles=self.limits.apply(measurement[2:6], measurement[2:6]),
+                               mode='hold')
+            self.controller = self.fresh_controller()
         self._cmd_pub.publish(vector_message(itf.ANGLE_FIELDS, step.angles))
         age = -1.0 if self._last_estimate_round_trip is None else (
             (round_trip - self._last_estimate_round_trip) / self.period)

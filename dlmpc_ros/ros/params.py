@@ -8,7 +8,9 @@ from collections.abc import Callable, Mapping
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
@@ -55,10 +57,20 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
     """Init rclpy, build the node, spin until SIGINT/SIGTERM, shutdown or ``node.finished``.
 
     Returns the exit code: the node's ``exit_code`` attribute (0 if it has none), or 2 with
-    one log line (no traceback) when the constructor raises :class:`StartupError`.
+    one log line (no traceback) when the constructor raises :class:`StartupError`, a
+    parameter has the wrong type, or the ROS arguments or parameter file cannot be read.
     """
     requested = stop_on_signals()
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    fatal = rclpy.logging.get_logger('dlmpc_ros').fatal
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except _rclpy.UnknownROSArgsError as err:
+        fatal(f'cannot start: unknown ROS arguments {err}; after --ros-args give '
+              '-p NAME:=VALUE or --params-file FILE')
+        return 2
+    except _rclpy.RCLError as err:
+        fatal(f'cannot start: fix the command-line parameters or the parameter file: {err}')
+        return 2
     node = None
     code = 0
     executor = None
@@ -69,8 +81,8 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
         while not requested.is_set() and rclpy.ok() and not getattr(node, 'finished', False):
             executor.spin_once(timeout_sec=0.1)
         code = getattr(node, 'exit_code', 0)
-    except StartupError as err:
-        rclpy.logging.get_logger('dlmpc_ros').fatal(f'cannot start: {err}')
+    except (StartupError, InvalidParameterTypeException, InvalidParameterValueException) as err:
+        fatal(f'cannot start: {err}')
         code = 2
     except ExternalShutdownException:
         pass
