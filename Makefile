@@ -22,7 +22,7 @@ test: $(STAMP)
 	$(PY) -m pytest -q test
 
 demo: $(STAMP)
-	$(VENV)/bin/bringup --controller dlmpc --scenario sinusoidal \
+	$(VENV)/bin/bringup --controller dlmpc --lockstep --scenario sinusoidal \
 	    --scenario-param amplitude=0.25 --scenario-param period=4000 \
 	    --round-trips 8000 --csv $(OUT)/demo/run.csv --plot $(OUT)/demo/run.png \
 	    --log-dir $(OUT)/demo/logs

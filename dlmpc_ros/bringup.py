@@ -37,10 +37,12 @@ NODES = {
     'mpc_controller': ('dlmpc_ros.nodes.mpc_controller_node', 'mpc_controller.yaml'),
     'baseline_controller': ('dlmpc_ros.nodes.baseline_controller_node',
                             'baseline_controller.yaml'),
+    'recorder': ('dlmpc_ros.nodes.recorder_node', 'recorder.yaml'),
 }
 CONTROLLER_CHOICES = ('dlmpc', 'esc', 'passive', 'fixed_best', 'oracle', 'none')
 #: Nodes that subscribe /laser/state (the simulator holds round trip 1 until they do).
-STATE_READERS = ('drift_injector', 'vae_estimator', 'mpc_controller', 'baseline_controller')
+STATE_READERS = ('drift_injector', 'vae_estimator', 'mpc_controller', 'baseline_controller',
+                 'recorder')
 DEFAULT_DOMAIN_ID = 87
 
 
@@ -87,6 +89,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help='ROS_AUTOMATIC_DISCOVERY_RANGE (default: %(default)s keeps the graph '
                         'off the network)')
     p.add_argument('--csv', type=Path, help='write every round trip (state and K) here')
+    p.add_argument('--record', type=Path, metavar='DIR',
+                   help='record every /laser, /estimator and /controller topic to a rosbag2 '
+                        'bag (MCAP) in DIR (must not exist); the recorder stops last')
     p.add_argument('--plot', type=Path, help='plot O and K of the run to this PNG at the end')
     p.add_argument('--log-dir', type=Path, help='node logs (default: ~/.ros/log/dlmpc_ros/<time>)')
     p.add_argument('--connect-timeout', type=float, default=120.0,
@@ -102,6 +107,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     args = p.parse_args(argv)
     args.nodes = [n.strip() for n in args.nodes.split(',') if n.strip()]
     args.nodes += [n for n in controller_nodes(args.controller) if n not in args.nodes]
+    if args.record is not None:
+        if args.record.exists():
+            p.error(f'--record {args.record} exists; choose a new directory')
+        args.nodes.append('recorder')
     unknown = [n for n in args.nodes if n not in NODES]
     if unknown:
         p.error(f'unknown node(s) {unknown}; known: {sorted(NODES)}')
@@ -186,8 +195,10 @@ def build_graph(args: argparse.Namespace, env: dict[str, str], log_dir: Path) ->
                 # passive: the setting a person tuned for the initial K, then left alone
                 overrides.update(controller=args.controller,
                                  initial_birefringence=float(scenario(1)))
+        elif name == 'recorder':
+            overrides = {'output': str(args.record.resolve())}
         nodes.append(NodeProcess(name, module, config_file(params), overrides,
-                                 respawn=name in args.respawn))
+                                 respawn=name in args.respawn, stop_last=name == 'recorder'))
     return NodeGraph(nodes, env, log_dir, max_restarts=args.max_restarts)
 
 

@@ -38,6 +38,7 @@ class NodeProcess:
     log_path: Path | None = None
     stopping: bool = False
     respawn: bool = False
+    stop_last: bool = False
     restarts: deque[float] = field(default_factory=deque)
     restart_count: int = 0
 
@@ -176,16 +177,28 @@ class NodeGraph:
                 if n.process is not None and not n.stopping and n.process.poll() is not None]
 
     def stop(self, timeout: float = 10.0) -> dict[str, int]:
-        """SIGINT every node, wait up to ``timeout`` s, then SIGTERM, then SIGKILL.
+        """SIGINT every node, wait up to ``timeout`` s, then SIGTERM, then SIGKILL; nodes
+        marked ``stop_last`` (the recorder) only once all others have exited, so that they
+        receive everything the others published.
 
         Returns each node's exit code (negative: killed by that signal).
         """
         running = [n for n in self.nodes if n.process is not None]
         for node in running:
             node.stopping = True
+        for group in ([n for n in running if not n.stop_last],
+                      [n for n in running if n.stop_last]):
+            self._signal_until_gone(group, timeout)
+        codes = {n.name: n.process.wait() for n in running}
+        for node in running:
+            self.pid_path(node).unlink(missing_ok=True)
+        return codes
+
+    @staticmethod
+    def _signal_until_gone(group: list[NodeProcess], timeout: float) -> None:
         for sig, wait in ((signal.SIGINT, timeout), (signal.SIGTERM, 3.0),
                           (signal.SIGKILL, 3.0)):
-            alive = [n for n in running if n.process.poll() is None]
+            alive = [n for n in group if n.process.poll() is None]
             if not alive:
                 break
             for node in alive:
@@ -196,7 +209,3 @@ class NodeGraph:
             deadline = time.monotonic() + wait
             while time.monotonic() < deadline and any(n.process.poll() is None for n in alive):
                 time.sleep(0.05)
-        codes = {n.name: n.process.wait() for n in running}
-        for node in running:
-            self.pid_path(node).unlink(missing_ok=True)
-        return codes

@@ -79,6 +79,13 @@ class DLMPCController:
         self._plan: torch.Tensor | None = None             # (N, 4) remaining plan
         self._queued: list[np.ndarray] = []                # apply_all: plan to play out
 
+    def warm_up(self) -> None:
+        """Run one forward and backward pass on zeros (no state touched), so that the first
+        real plan does not pay torch's one-off start-up cost in the middle of a run."""
+        history = torch.zeros(1, self.model.min_history(), 10)  # (1, N + 2b, features)
+        plan = torch.zeros(1, self.model.config.horizon, 4, requires_grad=True)
+        self.model(history, plan).objective.sum().backward()
+
     def step(self, measurement: np.ndarray, surrogate: float | None = None) -> ControlStep:
         """Measurement (6,) and the estimator's surrogate for it -> next period's angles."""
         started = time.perf_counter()

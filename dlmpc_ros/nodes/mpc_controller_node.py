@@ -53,6 +53,7 @@ class MPCControllerNode(ControllerNodeBase):
             self.controller = load_dlmpc(models_dir(self.values['models_dir']), config)
         except (ModelFileError, FileNotFoundError) as err:
             raise params.StartupError(str(err)) from None
+        self.controller.warm_up()
         self.start()
 
     def fresh_controller(self) -> DLMPCController:
@@ -61,6 +62,8 @@ class MPCControllerNode(ControllerNodeBase):
 
 
 def main(args: list[str] | None = None) -> None:
+    import torch
+    torch.set_num_threads(1)  # small models: threads only contend with the other nodes
     sys.exit(params.run_node(MPCControllerNode, args, executor_factory=EventsExecutor))
 
 

@@ -67,6 +67,8 @@ class VAEEstimatorNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
+    import torch
+    torch.set_num_threads(1)  # small models: threads only contend with the other nodes
     sys.exit(params.run_node(VAEEstimatorNode, args))
 
 

@@ -91,3 +91,11 @@ def test_controller_never_receives_the_true_birefringence():
 def test_bad_controller_settings_are_rejected(bad):
     with pytest.raises(ValueError):
         DLMPCConfig(**bad)
+
+
+def test_warm_up_leaves_the_controller_state_alone():
+    ctrl = _controller(error_threshold=1e6)
+    ctrl.warm_up()
+    assert len(ctrl.history) == 0 and ctrl._plan is None
+    modes, _ = _run(ctrl, ctrl.model.min_history() + 1, seed=4)
+    assert modes[-1] == 'outer'

@@ -98,3 +98,20 @@ def test_ctrl_c_stops_the_graph_cleanly(ros_env, tmp_path):
     assert 'interrupted, stopping the graph' in out
     for name in ('laser_sim', 'drift_injector'):
         assert 'Traceback' not in (tmp_path / 'logs' / f'{name}.log').read_text()
+
+
+def test_bringup_records_every_state_message_to_a_bag(ros_env, tmp_path):
+    from dlmpc_ros.recording import check_round_trips, read_bag
+    bag = tmp_path / 'bag'
+    proc = subprocess.run(
+        [sys.executable, '-m', 'dlmpc_ros.bringup', '--controller', 'fixed_best',
+         '--round-trips', '1500', '--record', str(bag), '--domain-id', ros_env['ROS_DOMAIN_ID'],
+         '--log-dir', str(tmp_path / 'logs')],
+        env=ros_env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    topics = read_bag(bag)
+    check = check_round_trips(topics['/laser/state'].column('round_trip'))
+    assert check.first == 1 and check.last >= 1500 and check.contiguous
+    # the recorder stops last, so it holds everything the simulator published
+    assert len(topics['/laser/sim_truth'].data) == check.count
+    assert len(topics['/controller/status'].data) >= 10
