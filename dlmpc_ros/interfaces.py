@@ -125,3 +125,7 @@ class RateLimitedLog:
         self._log(text + suffix)
         self._last[key] = now
         return True
+
+    def dropped(self, topic: str, fault: str) -> bool:
+        """Report a message dropped on ``topic`` for ``fault`` (rate-limited per topic)."""
+        return self(topic, f'dropped a message on {topic}: {fault}')

@@ -1,11 +1,28 @@
-"""Reading the bringup's CSV files (no rclpy): the run (one row per round trip) and the
-control decisions (one row per control period)."""
+"""The bringup's CSV files (no rclpy): the run (one row per round trip: the state fields
+and the true K) and the control decisions (one row per control period). Written by the
+bringup's monitor and by ``dlmpc-bag csv``, read by the evaluation and the plots."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+
+from dlmpc_ros import interfaces as itf
+
+RUN_FIELDS = (*itf.STATE_FIELDS, 'K')
+DECISION_FIELDS = (*itf.CONTROLLER_STATUS_FIELDS, 'estimator_latency_ms')
+
+
+def write_header(writer) -> None:
+    """Run CSV header: the state fields and the true K."""
+    writer.writerow(RUN_FIELDS)
+
+
+def write_row(writer, values: Sequence[float]) -> None:
+    """One CSV row of floats, written exactly (``repr``)."""
+    writer.writerow([repr(float(x)) for x in values])
 
 
 def decisions_path(csv_path: Path) -> Path:

@@ -20,6 +20,7 @@ from dlmpc_ros import interfaces as itf
 from dlmpc_ros.recording.reader import check_round_trips, read_bag, read_metadata
 from dlmpc_ros.recording.repair import find_mcap, repair
 from dlmpc_ros.recording.writer import BagError
+from dlmpc_ros.ros_csv import write_header, write_row
 
 #: Gaps listed one by one by ``info`` (the rest are counted).
 SHOWN_GAPS = 10
@@ -95,8 +96,6 @@ def repair_command(bag: Path) -> int:
 
 
 def csv_command(bag: Path, out: Path) -> int:
-    from dlmpc_ros.ros.monitor import write_header  # imports rclpy: only for this command
-
     names = {t['topic_metadata']['name'] for t in read_metadata(bag)['topics_with_message_count']}
     wanted = [itf.TOPIC_STATE] + ([itf.TOPIC_SIM_TRUTH] if itf.TOPIC_SIM_TRUTH in names else [])
     topics = read_bag(bag, wanted)
@@ -116,7 +115,7 @@ def csv_command(bag: Path, out: Path) -> int:
         for row in state.data.tolist():
             k = truth.get(int(row[0]), math.nan)
             known += k == k
-            writer.writerow([*(repr(x) for x in row), repr(k)])
+            write_row(writer, [*row, k])
     print(f'wrote {len(state)} rows to {out} (K known for {known})')
     return 0
 

@@ -59,7 +59,7 @@ class BaselineControllerNode(ControllerNodeBase):
     def _on_truth(self, msg: Float64MultiArray) -> None:
         fault = itf.vector_fault(msg.data, itf.SIM_TRUTH_FIELDS, 1e300)
         if fault is not None:
-            return self._drop(itf.TOPIC_SIM_TRUTH, fault)
+            return self._warn.dropped(itf.TOPIC_SIM_TRUTH, fault)
         if int(msg.data[0]) % self.period == 0:
             self._truth[int(msg.data[0])] = msg.data[1]
             while len(self._truth) > 64:

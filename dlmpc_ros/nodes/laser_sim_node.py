@@ -128,7 +128,7 @@ class LaserSimNode(Node):
     def _on_vector(self, topic: str, msg: Float64MultiArray, limit: float):
         fault = itf.vector_fault(msg.data, itf.FIELDS[topic], limit)
         if fault is not None:
-            self._warn(topic, f'dropped a message on {topic}: {fault}')
+            self._warn.dropped(topic, fault)
             with self._lock:
                 self.counts['messages_rejected'] += 1
             return None

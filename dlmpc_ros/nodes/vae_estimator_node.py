@@ -49,7 +49,7 @@ class VAEEstimatorNode(Node):
     def _on_state(self, msg: Float64MultiArray) -> None:
         fault = itf.state_fault(msg.data)
         if fault is not None:
-            self._warn('state', f'dropped a message on {itf.TOPIC_STATE}: {fault}')
+            self._warn.dropped(itf.TOPIC_STATE, fault)
             return
         round_trip = int(msg.data[0])
         if round_trip % self.period:

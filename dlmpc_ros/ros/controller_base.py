@@ -81,13 +81,10 @@ class ControllerNodeBase(Node):
                                      QOS[itf.TOPIC_ESTIMATE])
         self.create_timer(0.02, self._check_timeout)
 
-    def _drop(self, topic: str, fault: str) -> None:
-        self._warn(topic, f'dropped a message on {topic}: {fault}')
-
     def _on_state(self, msg: Float64MultiArray) -> None:
         fault = itf.state_fault(msg.data)
         if fault is not None:
-            return self._drop(itf.TOPIC_STATE, fault)
+            return self._warn.dropped(itf.TOPIC_STATE, fault)
         round_trip = int(msg.data[0])
         if round_trip % self.period or round_trip == self._last_acted:
             return None
@@ -107,7 +104,7 @@ class ControllerNodeBase(Node):
         elif data[0] < 0 or data[0] != int(data[0]):
             fault = f'round_trip = {data[0]} is not a count'
         if fault is not None:
-            return self._drop(itf.TOPIC_ESTIMATE, fault)
+            return self._warn.dropped(itf.TOPIC_ESTIMATE, fault)
         round_trip = int(data[0])
         self._estimates[round_trip] = float(data[1])
         self._last_estimate_round_trip = round_trip

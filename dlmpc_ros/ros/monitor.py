@@ -26,7 +26,7 @@ from dlmpc_ros import interfaces as itf
 from dlmpc_ros.graph import NodeGraph
 from dlmpc_ros.ros.io import QOS
 from dlmpc_ros.ros.params import stop_on_signals
-from dlmpc_ros.ros_csv import decisions_path
+from dlmpc_ros.ros_csv import DECISION_FIELDS, decisions_path, write_header, write_row
 
 #: States wait at most this many rows for their K before they are written without it.
 MAX_PENDING = 2000
@@ -104,14 +104,6 @@ class MonitorNode(Node):
             self._truth = {r: k for r, k in self._truth.items() if r >= oldest}
 
 
-def write_header(writer) -> None:
-    """CSV header: the state fields and the true K."""
-    writer.writerow([*itf.STATE_FIELDS, 'K'])
-
-
-DECISION_FIELDS = (*itf.CONTROLLER_STATUS_FIELDS, 'estimator_latency_ms')
-
-
 def status_line(state: list[float], k: float, rate: float) -> str:
     """One-line live status of the run."""
     k_text = f'{k:+.4f}' if math.isfinite(k) else '   n/a'
@@ -137,11 +129,11 @@ def run_monitor(args: argparse.Namespace, graph: NodeGraph) -> int:
 
     def on_row(state: list[float], k: float) -> None:
         if writer is not None and (limit == 0 or state[0] <= limit):
-            writer.writerow([*(repr(x) for x in state), repr(k)])
+            write_row(writer, [*state, k])
 
     def on_decision(row: list[float]) -> None:
         if limit == 0 or row[0] <= limit:
-            decision_writer.writerow([repr(x) for x in row])
+            write_row(decision_writer, row)
 
     node = MonitorNode(on_row, on_decision if decision_writer is not None else None)
     executor = EventsExecutor()
