@@ -3,24 +3,23 @@
 ``dlmpc-bag info DIR`` lists topics, counts and duration, and checks the round-trip index
 of ``/laser/state`` (first, last, gaps, duplicates). ``dlmpc-bag repair DIR`` makes a bag
 whose recorder was killed readable again. ``dlmpc-bag csv DIR OUT.csv`` writes the
-``/laser/state`` rows joined by round trip with the K of ``/laser/sim_truth``, in the
-columns of the bringup's run CSV (K is NaN without a simulator).
+``/laser/state`` rows joined by round trip with the K of ``/laser/sim_truth``, and the
+``/controller/status`` decisions, in the bringup's CSV files (K is NaN without a
+simulator); ``dlmpc-evaluate --bag DIR`` turns a bag into metrics and plots.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
-import math
 import sys
 import time
 from pathlib import Path
 
 from dlmpc_ros import interfaces as itf
+from dlmpc_ros.recording.export import bag_to_csv
 from dlmpc_ros.recording.reader import check_round_trips, read_bag, read_metadata
 from dlmpc_ros.recording.repair import find_mcap, repair
 from dlmpc_ros.recording.writer import BagError
-from dlmpc_ros.ros_csv import write_header, write_row
 
 #: Gaps listed one by one by ``info`` (the rest are counted).
 SHOWN_GAPS = 10
@@ -96,27 +95,10 @@ def repair_command(bag: Path) -> int:
 
 
 def csv_command(bag: Path, out: Path) -> int:
-    names = {t['topic_metadata']['name'] for t in read_metadata(bag)['topics_with_message_count']}
-    wanted = [itf.TOPIC_STATE] + ([itf.TOPIC_SIM_TRUTH] if itf.TOPIC_SIM_TRUTH in names else [])
-    topics = read_bag(bag, wanted)
-    state = topics[itf.TOPIC_STATE]
-    if state.fields and state.fields != itf.STATE_FIELDS:
-        raise BagError(f'{itf.TOPIC_STATE} in {bag} has fields {state.fields}, expected '
-                       f'{itf.STATE_FIELDS}')
-    truth = {}
-    if itf.TOPIC_SIM_TRUTH in topics:
-        data = topics[itf.TOPIC_SIM_TRUTH].data
-        truth = dict(zip(data[:, 0].astype(int).tolist(), data[:, 1].tolist()))
-    out.parent.mkdir(parents=True, exist_ok=True)
-    known = 0
-    with open(out, 'w', newline='') as handle:
-        writer = csv.writer(handle)
-        write_header(writer)
-        for row in state.data.tolist():
-            k = truth.get(int(row[0]), math.nan)
-            known += k == k
-            write_row(writer, [*row, k])
-    print(f'wrote {len(state)} rows to {out} (K known for {known})')
+    report = bag_to_csv(bag, out)
+    print(f'wrote {report.rows} rows to {report.run_csv} (K known for {report.rows_with_k})')
+    print(f'wrote {report.decisions} controller decisions to {report.decisions_csv} '
+          f'(estimator latency known for {report.decisions_with_estimate})')
     return 0
 
 
@@ -127,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
         .add_argument('bag', type=Path, help='bag directory')
     sub.add_parser('repair', help='make a bag whose recorder was killed readable') \
         .add_argument('bag', type=Path, help='bag directory')
-    export = sub.add_parser('csv', help='/laser/state joined with the true K, as CSV')
+    export = sub.add_parser('csv',
+                            help='the run (with the true K) and the decisions as CSV')
     export.add_argument('bag', type=Path, help='bag directory')
     export.add_argument('out', type=Path, help='CSV file to write')
     args = p.parse_args(argv)

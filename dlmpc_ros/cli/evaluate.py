@@ -6,6 +6,11 @@ Example: ``dlmpc-evaluate --scenario sinusoidal --controller dlmpc --controller 
 controllers and seeds, in one process (``--fast``) or through the real node graph in
 lockstep (default), and writes ``OUT/metrics.json``, ``OUT/table.md``, ``OUT/figures/``
 and one folder per run (``record.npz``, ``metrics.json``).
+
+``dlmpc-evaluate --bag DIR [--bag DIR ...] --out OUT`` does the same for runs recorded
+with ``bringup --record`` (or the recorder node): the same metrics, table and figures as
+a live run. A bag without ``/laser/sim_truth`` (a real laser) gets the metrics that need
+no true K.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 
 from dlmpc_ros.control.factory import CONTROLLERS, load_dlmpc, load_estimator, make_baseline
 from dlmpc_ros.control.limits import AngleLimits
@@ -62,8 +68,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help='graph mode without lockstep (depends on machine load)')
     p.add_argument('--models-dir', type=Path, help='model files (default: installed models/)')
     p.add_argument('--domain-id', type=int, default=88, help='ROS domain of graph runs')
+    p.add_argument('--bag', action='append', type=Path, metavar='DIR',
+                   help='evaluate a recorded rosbag2 bag instead of running, repeatable')
     p.add_argument('--out', type=Path, required=True, help='output directory')
     args = p.parse_args(argv)
+    args.models_dir = args.models_dir or default_models_dir()
+    if args.bag and (args.scenario or args.controller or args.seed or args.fast):
+        p.error('--bag evaluates recorded runs; it takes no --scenario, --controller, '
+                '--seed or --fast')
+    if args.bag:
+        return args
     args.scenario = args.scenario or ['sinusoidal']
     args.controller = args.controller or ['dlmpc']
     args.seed = args.seed or [1]
@@ -147,6 +161,58 @@ def markdown_table(rows: list[dict]) -> str:
     return '\n'.join(lines) + '\n'
 
 
+def _summary_line(metrics: dict) -> str:
+    def text(key: str, form: str) -> str:
+        value = metrics.get(key)
+        return 'n/a' if value is None else format(value, form)
+    return (f"oracle ratio {text('oracle_ratio', '.3f')}, locked "
+            f"{text('locked_fraction', '.3f')}, acquisition "
+            f"{text('acquisition_round_trips', 'd')}, latency median "
+            f"{text('step_latency_ms_median', '.2f')} ms")
+
+
+def evaluate_bags(args: argparse.Namespace, envelope: dict) -> int:
+    """Metrics, table and figures of recorded bags (one folder per bag under OUT)."""
+    from dlmpc_ros.evaluation.graph_run import record_from_csv
+    from dlmpc_ros.recording import BagError
+    from dlmpc_ros.recording.export import bag_to_csv
+
+    runs = []
+    for i, bag in enumerate(args.bag, 1):
+        run_dir = args.out / bag.resolve().name
+        try:
+            report = bag_to_csv(bag, run_dir / 'run.csv')
+            record = record_from_csv(report.run_csv, {'source': 'bag', 'bag': str(bag)})
+        except (BagError, OSError, ValueError) as err:
+            print(f'dlmpc-evaluate: {bag}: {err}', file=sys.stderr)
+            return 1
+        metrics = run_metrics(record, envelope)
+        metrics['surrogate_abs_r'] = surrogate_correlation(record)
+        record.save(run_dir / 'record.npz')
+        (run_dir / 'metrics.json').write_text(json.dumps({**record.meta, **metrics}, indent=2))
+        label = bag.resolve().name
+        runs.append({'scenario': 'bag', 'seed': '-', 'controller': label, 'metrics': metrics,
+                     'meta': record.meta})
+        if report.rows_with_k:
+            plot_tracking({label: record}, envelope, label, f'bag {label}',
+                          args.out / 'figures' / f'{label}-tracking.png')
+            if np.isfinite(record.surrogate).any():
+                plot_surrogate(record, f'bag {label}: VAE surrogate',
+                               args.out / 'figures' / f'{label}-surrogate.png')
+        print(f'[{i}/{len(args.bag)}] {bag}: {report.rows} round trips, {report.decisions} '
+              f'decisions: {_summary_line(metrics)}', flush=True)
+    _write_summary(args.out, runs)
+    return 0
+
+
+def _write_summary(out: Path, runs: list[dict]) -> None:
+    summary: dict = {'runs': runs}
+    if len(runs) == 1:
+        summary.update(runs[0]['metrics'])
+    (out / 'metrics.json').write_text(json.dumps(summary, indent=2))
+    (out / 'table.md').write_text(markdown_table(runs))
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     from dlmpc_ros.learning.baselines import load_baselines
@@ -156,6 +222,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f'dlmpc-evaluate: {err}', file=sys.stderr)
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.bag:
+        code = evaluate_bags(args, envelope)
+        if code == 0:
+            print(f'dlmpc-evaluate: wrote {args.out}/metrics.json, table.md and figures/')
+        return code
     runs, records = [], {}
     combos = list(itertools.product(args.scenario, args.seed, args.controller))
     for i, (scenario_name, seed, controller_name) in enumerate(combos, 1):
@@ -177,15 +248,8 @@ def main(argv: list[str] | None = None) -> int:
                      'metrics': metrics, 'meta': record.meta})
         records[(scenario_name, seed, controller_name)] = record
         print(f'[{i}/{len(combos)}] {scenario_name} seed {seed} {controller_name}: '
-              f"oracle ratio {metrics['oracle_ratio']:.3f}, locked "
-              f"{metrics['locked_fraction']:.3f}, acquisition "
-              f"{metrics['acquisition_round_trips']}, latency median "
-              f"{metrics['step_latency_ms_median']:.2f} ms ({wall:.0f} s)", flush=True)
-    summary: dict = {'runs': runs}
-    if len(runs) == 1:
-        summary.update(runs[0]['metrics'])
-    (args.out / 'metrics.json').write_text(json.dumps(summary, indent=2))
-    (args.out / 'table.md').write_text(markdown_table(runs))
+              f'{_summary_line(metrics)} ({wall:.0f} s)', flush=True)
+    _write_summary(args.out, runs)
     for scenario_name, seed in itertools.product(args.scenario, args.seed):
         group = {c: records[(scenario_name, seed, c)] for c in args.controller}
         shown = 'dlmpc' if 'dlmpc' in group else args.controller[0]

@@ -37,8 +37,9 @@ def record_from_csv(run_csv: Path, meta: dict | None = None) -> RunRecord:
 def run_graph(out_dir: Path, controller: str, scenario: str, settings: list[str],
               round_trips: int, period: int, initial_angles: np.ndarray,
               domain_id: int, lockstep: bool = True, models_dir: Path | None = None,
-              meta: dict | None = None) -> RunRecord:
-    """Run the bringup for one closed loop; raises RuntimeError if it fails."""
+              meta: dict | None = None, record_bag: Path | None = None) -> RunRecord:
+    """Run the bringup for one closed loop (recording a bag to ``record_bag`` if given);
+    raises RuntimeError if it fails."""
     out_dir.mkdir(parents=True, exist_ok=True)
     csv_path = out_dir / 'run.csv'
     cmd = [sys.executable, '-m', 'dlmpc_ros.bringup', '--controller', controller,
@@ -52,6 +53,8 @@ def run_graph(out_dir: Path, controller: str, scenario: str, settings: list[str]
         cmd.append('--lockstep')
     if models_dir is not None:
         cmd += ['--models-dir', str(models_dir)]
+    if record_bag is not None:
+        cmd += ['--record', str(record_bag)]
     with open(out_dir / 'bringup.log', 'w') as log:
         code = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT).returncode
     if code != 0:

@@ -12,11 +12,14 @@ Definitions (round trips counted from the first one of the run):
 - recovery after a step in K (a jump of more than ``step_threshold`` between two round
   trips): round trips from the jump to the next run of ``hold`` locked round trips.
 - control-step latency (estimate plus plan): median and 99th percentile [ms].
+
+Round trips without a true K (a recorded bag whose last truths never came) are left out
+of the K metrics; a run with no K at all (a real laser) gets only the measured ones.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -46,6 +49,11 @@ def run_metrics(record: RunRecord, envelope: dict[str, np.ndarray],
                 settings: MetricSettings | None = None) -> dict:
     """All metrics of one run as a JSON-ready dict."""
     s = settings or MetricSettings()
+    known = np.isfinite(record.K)
+    if not known.all():  # a hardware laser (no true K), or the last truths never came
+        if not known.any():
+            return _measured_only(record)
+        record = _rows(record, known)
     o = np.nan_to_num(record.O, nan=0.0)
     o_star = envelope_objective(envelope, record.K)
     locked = o >= s.lock_fraction * o_star
@@ -57,12 +65,10 @@ def run_metrics(record: RunRecord, envelope: dict[str, np.ndarray],
         back = _first_hold(locked, int(j), hold)
         recoveries.append(None if back is None else int(back - j))
     done = [r for r in recoveries if r is not None]
-    latency = record.latency_ms
-    modes = {name: float(np.mean(record.mode == i)) for i, name in enumerate(MODES)
-             if np.any(record.mode == i)}
     after = slice(acquired if acquired is not None else o.size, None)
     return {
         'round_trips': int(o.size),
+        'round_trips_without_K': int((~known).sum()),
         'mean_O': float(o.mean()),
         'mean_oracle_O': float(o_star.mean()),
         'oracle_ratio': float(o.mean() / o_star.mean()),
@@ -74,9 +80,39 @@ def run_metrics(record: RunRecord, envelope: dict[str, np.ndarray],
         'steps_in_K': int(jumps.size),
         'recovery_round_trips': recoveries,
         'recovery_round_trips_max': max(done) if done else None,
+        **_control_metrics(record),
+        'settings': asdict(s),
+    }
+
+
+def _control_metrics(record: RunRecord) -> dict:
+    latency = record.latency_ms
+    return {
         'step_latency_ms_median': float(np.median(latency)) if latency.size else None,
         'step_latency_ms_p99': float(np.percentile(latency, 99)) if latency.size else None,
         'control_periods': int(latency.size),
-        'mode_fractions': modes,
-        'settings': asdict(s),
+        'mode_fractions': {name: float(np.mean(record.mode == i))
+                           for i, name in enumerate(MODES) if np.any(record.mode == i)},
     }
+
+
+def _measured_only(record: RunRecord) -> dict:
+    """The metrics that need no true K (a run on a real laser); the others are None."""
+    o = np.nan_to_num(record.O, nan=0.0)
+    return {
+        'round_trips': int(o.size),
+        'round_trips_without_K': int(o.size),
+        'mean_O': float(o.mean()) if o.size else None,
+        **{key: None for key in ('mean_oracle_O', 'oracle_ratio',
+                                 'oracle_ratio_after_acquisition', 'locked_fraction',
+                                 'acquisition_round_trips', 'recovery_round_trips_max')},
+        'blown_up_round_trips': int(np.isnan(record.O).sum()),
+        **_control_metrics(record),
+    }
+
+
+def _rows(record: RunRecord, keep: np.ndarray) -> RunRecord:
+    """The record restricted to the round trips ``keep`` (control periods unchanged)."""
+    return replace(record, round_trip=record.round_trip[keep], K=record.K[keep],
+                   E=record.E[keep], M=record.M[keep], O=record.O[keep],
+                   angles=record.angles[keep])

@@ -34,7 +34,8 @@ class BagTopic:
     fields: tuple[str, ...]
     #: (n,) int64 receive times [ns since the epoch].
     timestamps_ns: np.ndarray
-    #: (n, width) float64 message values.
+    #: (n, width) float64 message values; width is the longest message's, shorter ones
+    #: are padded with NaN.
     data: np.ndarray
 
     def __len__(self) -> int:
@@ -113,7 +114,9 @@ def read_bag(path: str | os.PathLike, topics: Sequence[str] | None = None) -> di
 
 
 def decode_float64_arrays(raws: Sequence[bytes]) -> tuple[tuple[str, ...], np.ndarray]:
-    """Field names and (n, width) values of CDR-serialized Float64MultiArray messages."""
+    """Field names and (n, width) values of CDR-serialized Float64MultiArray messages;
+    ``width`` is the longest message's length, and shorter messages (the controller's
+    status holds the predicted O only in the outer loop) are padded with NaN."""
     if not raws:
         return (), np.zeros((0, 0))
     store = jazzy_typestore()
@@ -121,17 +124,13 @@ def decode_float64_arrays(raws: Sequence[bytes]) -> tuple[tuple[str, ...], np.nd
     label = first.layout.dim[0].label if len(first.layout.dim) else ''
     fields = tuple(label.split(',')) if label else ()
     lengths = np.fromiter(map(len, raws), dtype=np.int64, count=len(raws))
-    width = -1
-    data = None
-    for length in np.unique(lengths):
-        rows = np.flatnonzero(lengths == length)
-        values = _cut_values(store, [raws[i] for i in rows], int(length))
-        if width < 0:
-            width = values.shape[1]
-            data = np.empty((len(raws), width))
-        if values.shape[1] != width:
-            raise ValueError(f'messages hold {width} and {values.shape[1]} values')
-        data[rows] = values
+    groups = [(np.flatnonzero(lengths == length),
+               _cut_values(store, [raws[i] for i in np.flatnonzero(lengths == length)],
+                           int(length)))
+              for length in np.unique(lengths)]
+    data = np.full((len(raws), max(values.shape[1] for _, values in groups)), np.nan)
+    for rows, values in groups:
+        data[rows, :values.shape[1]] = values
     return fields, data
 
 

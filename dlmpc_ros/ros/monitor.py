@@ -30,6 +30,8 @@ from dlmpc_ros.ros_csv import DECISION_FIELDS, decisions_path, write_header, wri
 
 #: States wait at most this many rows for their K before they are written without it.
 MAX_PENDING = 2000
+#: Decisions wait at most this many for their estimate (it travels on another topic).
+MAX_PENDING_DECISIONS = 16
 
 
 class MonitorNode(Node):
@@ -40,6 +42,8 @@ class MonitorNode(Node):
         super().__init__('bringup_monitor')
         self._on_decision = on_decision
         self._estimate_latency: dict[int, float] = {}
+        self._latest_estimate = -1
+        self._decisions: deque[list[float]] = deque()
         self.decisions = 0
         self.state: list[float] | None = None
         self.k = math.nan
@@ -62,15 +66,29 @@ class MonitorNode(Node):
         data = msg.data
         if len(data) >= len(itf.ESTIMATE_FIELDS) and math.isfinite(data[0]):
             self._estimate_latency[int(data[0])] = data[2]
+            self._latest_estimate = max(self._latest_estimate, int(data[0]))
             while len(self._estimate_latency) > 256:
                 self._estimate_latency.pop(next(iter(self._estimate_latency)))
+            self.flush_decisions()
 
     def _on_status(self, msg: Float64MultiArray) -> None:
         data = list(msg.data[:len(itf.CONTROLLER_STATUS_FIELDS)])
         if len(data) == len(itf.CONTROLLER_STATUS_FIELDS) and math.isfinite(data[0]):
-            latency = self._estimate_latency.pop(int(data[0]), math.nan)
+            self._decisions.append(data)
+            self.flush_decisions()
+
+    def flush_decisions(self, everything: bool = False) -> None:
+        """Hand on the decisions whose estimate has come, or will not come (no estimator,
+        a later estimate seen, or too many waiting), in order."""
+        while self._decisions:
+            round_trip = int(self._decisions[0][0])
+            if not (round_trip in self._estimate_latency or everything
+                    or self._latest_estimate < 0 or self._latest_estimate > round_trip
+                    or len(self._decisions) > MAX_PENDING_DECISIONS):
+                break
+            data = self._decisions.popleft()
             self.decisions += 1
-            self._on_decision([*data, latency])
+            self._on_decision([*data, self._estimate_latency.pop(round_trip, math.nan)])
 
     def _on_state(self, msg: Float64MultiArray) -> None:
         if itf.vector_fault(msg.data, itf.STATE_FIELDS, 1e300) is None:
@@ -167,6 +185,7 @@ def run_monitor(args: argparse.Namespace, graph: NodeGraph) -> int:
                 print('\r' + line if tty else line, end='' if tty else '\n', flush=True)
     finally:
         node.flush(everything=True)
+        node.flush_decisions(everything=True)
         if tty:
             print()
         if node.state is not None:

@@ -5,14 +5,17 @@ after a step in K."""
 import json
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from dlmpc_ros.control.factory import load_dlmpc, load_estimator
 from dlmpc_ros.core.drift import make_scenario
 from dlmpc_ros.evaluation.closed_loop import random_initial_angles, run_closed_loop
 from dlmpc_ros.evaluation.graph_run import run_graph
+from dlmpc_ros.evaluation.record import RunRecord
 
 MODELS = Path(__file__).resolve().parents[2] / 'models'
 
@@ -22,7 +25,8 @@ def test_lockstep_graph_run_equals_the_in_process_loop(ros_env, tmp_path):
     angles = random_initial_angles(5)
     graph = run_graph(tmp_path / 'graph', 'dlmpc', 'steps',
                       ['times=200.0', 'values=0.15', 'offset=-0.05'], 400, 10, angles,
-                      int(ros_env['ROS_DOMAIN_ID']), models_dir=MODELS)
+                      int(ros_env['ROS_DOMAIN_ID']), models_dir=MODELS,
+                      record_bag=tmp_path / 'bag')
     fast = run_closed_loop(load_dlmpc(MODELS), make_scenario('steps', **settings), 400, 10,
                            angles, estimator=load_estimator(MODELS))
     np.testing.assert_array_equal(graph.round_trip, fast.round_trip)
@@ -33,6 +37,36 @@ def test_lockstep_graph_run_equals_the_in_process_loop(ros_env, tmp_path):
     n = graph.mode.size  # the monitor may stop before the last decision arrives
     assert n >= fast.mode.size - 1
     np.testing.assert_array_equal(graph.mode, fast.mode[:n])
+    _check_bag_evaluation(tmp_path, graph)
+
+
+def _check_bag_evaluation(tmp_path: Path, graph) -> None:
+    """The bag recorded beside the run gives the run's record, metrics and plots."""
+    from dlmpc_ros.cli.evaluate import main as evaluate
+    from dlmpc_ros.evaluation.metrics import run_metrics
+    from dlmpc_ros.learning.baselines import load_baselines
+
+    assert evaluate(['--bag', str(tmp_path / 'bag'), '--out', str(tmp_path / 'from-bag'),
+                     '--models-dir', str(MODELS)]) == 0
+    bag = RunRecord.load(tmp_path / 'from-bag' / 'bag' / 'record.npz')
+    n = graph.round_trip.size  # the bag may hold a few round trips past the run's end
+    assert bag.round_trip.size >= n
+    for name in ('round_trip', 'K', 'E', 'M', 'O', 'angles'):
+        np.testing.assert_array_equal(getattr(bag, name)[:n], getattr(graph, name))
+    c = graph.mode.size
+    assert bag.mode.size >= c
+    for name in ('control_round_trip', 'mode', 'surrogate', 'iterations', 'latency_ms'):
+        np.testing.assert_array_equal(getattr(bag, name)[:c], getattr(graph, name))
+    envelope = load_baselines(MODELS / 'oracle.npz')
+    expected = run_metrics(replace(bag, **{name: getattr(bag, name)[:n] for name in
+                                           ('round_trip', 'K', 'E', 'M', 'O', 'angles')}),
+                           envelope)
+    assert expected['oracle_ratio'] == pytest.approx(run_metrics(graph, envelope)['oracle_ratio'])
+    metrics = json.loads((tmp_path / 'from-bag' / 'metrics.json').read_text())
+    assert metrics['round_trips'] == bag.round_trip.size
+    assert metrics['oracle_ratio'] == pytest.approx(run_metrics(bag, envelope)['oracle_ratio'])
+    assert (tmp_path / 'from-bag' / 'figures' / 'bag-tracking.png').stat().st_size > 10_000
+    assert (tmp_path / 'from-bag' / 'figures' / 'bag-surrogate.png').is_file()
 
 
 def test_dlmpc_beats_passive_after_a_step_in_k_through_the_nodes(ros_env, tmp_path):

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import csv
+import json
 import math
 import os
 
 import numpy as np
+import pytest
 
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.cli.bag import main
@@ -73,3 +75,43 @@ def test_repair_command_and_errors_on_an_unfinished_bag(tmp_path, capsys):
     assert 'contiguous' in capsys.readouterr().out
     assert main(['repair', str(tmp_path / 'nothing')]) == 1
     assert 'not a bag directory' in capsys.readouterr().err
+
+
+def test_a_laser_bag_without_true_k_gets_the_measured_metrics(tmp_path, capsys):
+    """A real laser publishes no /laser/sim_truth: dlmpc-evaluate --bag reports what needs
+    no K, and reads a status topic whose messages differ in length (NaN-padded)."""
+    from dlmpc_ros.cli.evaluate import main as evaluate
+    from dlmpc_ros.paths import models_dir
+
+    fields = (*itf.CONTROLLER_STATUS_FIELDS, *(f'predicted_O{i}' for i in range(1, 4)))
+    with BagWriter(tmp_path / 'bench-run') as writer:
+        for topic in (itf.TOPIC_STATE, itf.TOPIC_CONTROLLER_STATUS):
+            writer.add_topic(topic)
+        for r in range(1, 101):
+            writer.write(itf.TOPIC_STATE, serialize(itf.STATE_FIELDS, state(r)), 10**18 + r)
+            if r % 10 == 0:  # inner loop (8 values) and outer loop (8 + 3) alternate
+                status = [r, float(r % 20 == 0), -1, 3, 0.5, 0.1, 1, 0]
+                extra = [0.13, 0.14, 0.15] if r % 20 == 0 else []
+                writer.write(itf.TOPIC_CONTROLLER_STATUS,
+                             serialize(fields[:8 + len(extra)], status + extra), 10**18 + r)
+    status = read_bag(tmp_path / 'bench-run')[itf.TOPIC_CONTROLLER_STATUS]
+    assert status.data.shape == (10, 11)
+    assert np.isnan(status.data[0, 8:]).all() and status.data[1, 8] == 0.13
+    out = tmp_path / 'eval'
+    assert evaluate(['--bag', str(tmp_path / 'bench-run'), '--out', str(out),
+                     '--models-dir', str(models_dir())]) == 0
+    assert 'oracle ratio n/a' in capsys.readouterr().out
+    metrics = json.loads((out / 'metrics.json').read_text())
+    assert metrics['mean_O'] == pytest.approx(4.0 / 30.0)
+    assert metrics['oracle_ratio'] is None and metrics['round_trips_without_K'] == 100
+    assert metrics['control_periods'] == 10 and metrics['step_latency_ms_median'] == 0.5
+    assert metrics['mode_fractions'] == {'inner': 0.5, 'outer': 0.5}
+
+
+def test_evaluate_bag_rejects_a_bag_without_laser_state(tmp_path, capsys):
+    from dlmpc_ros.cli.evaluate import main as evaluate
+
+    with BagWriter(tmp_path / 'empty') as writer:
+        writer.add_topic(itf.TOPIC_OBJECTIVE)
+    assert evaluate(['--bag', str(tmp_path / 'empty'), '--out', str(tmp_path / 'eval')]) == 1
+    assert 'has no /laser/state' in capsys.readouterr().err
