@@ -43,8 +43,9 @@ PRESETS: dict[str, dict[str, object]] = {
     'steps': {'times': [5000.0, 10000.0, 15000.0], 'values': [0.2, -0.2, 0.1]},
     'constant': {'offset': 0.1},
 }
-TABLE_KEYS = ('oracle_ratio', 'locked_fraction', 'acquisition_round_trips',
-              'recovery_round_trips_max', 'step_latency_ms_median', 'step_latency_ms_p99')
+TABLE_KEYS = ('oracle_ratio', 'oracle_controller_ratio', 'locked_fraction',
+              'acquisition_round_trips', 'recovery_round_trips_max', 'step_latency_ms_median',
+              'step_latency_ms_p99')
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -205,12 +206,54 @@ def evaluate_bags(args: argparse.Namespace, envelope: dict) -> int:
     return 0
 
 
+def add_oracle_controller_ratio(runs: list[dict]) -> None:
+    """Add ``oracle_controller_ratio``: mean O over the mean O of the ``oracle``
+    controller's run on the same scenario and seed (when the oracle ran too). The envelope
+    O*(K) is the point-wise best over branches, which no controller holds; the oracle
+    controller's branch-continuous path is the best reached in closed loop."""
+    oracle = {(r['scenario'], r['seed']): r['metrics']['mean_O'] for r in runs
+              if r['controller'] == 'oracle'}
+    for run in runs:
+        reference = oracle.get((run['scenario'], run['seed']))
+        mean_o = run['metrics'].get('mean_O')
+        if reference and mean_o is not None:
+            run['metrics']['oracle_controller_ratio'] = mean_o / reference
+
+
+def seed_summary(runs: list[dict]) -> str:
+    """Markdown table of oracle_ratio per scenario (rows) and controller (columns): the
+    mean over seeds and, with several seeds, the range."""
+    scenarios = list(dict.fromkeys(r['scenario'] for r in runs))
+    controllers = list(dict.fromkeys(r['controller'] for r in runs))
+    lines = ['| scenario | ' + ' | '.join(controllers) + ' |',
+             '|---|' + '---|' * len(controllers)]
+    for scenario in scenarios:
+        cells = []
+        for controller in controllers:
+            values = [r['metrics']['oracle_ratio'] for r in runs
+                      if r['scenario'] == scenario and r['controller'] == controller
+                      and r['metrics'].get('oracle_ratio') is not None]
+            if not values:
+                cells.append('-')
+            elif len(values) == 1:
+                cells.append(f'{values[0]:.3f}')
+            else:
+                cells.append(f'{np.mean(values):.3f} ({min(values):.3f}-{max(values):.3f})')
+        lines.append(f'| {scenario} | ' + ' | '.join(cells) + ' |')
+    return '\n'.join(lines) + '\n'
+
+
 def _write_summary(out: Path, runs: list[dict]) -> None:
+    add_oracle_controller_ratio(runs)
     summary: dict = {'runs': runs}
     if len(runs) == 1:
         summary.update(runs[0]['metrics'])
     (out / 'metrics.json').write_text(json.dumps(summary, indent=2))
-    (out / 'table.md').write_text(markdown_table(runs))
+    seeds = len({r['seed'] for r in runs})
+    (out / 'table.md').write_text(
+        f'oracle_ratio (mean O / mean O*(K)), mean over {seeds} seed(s)'
+        + (' (min-max)' if seeds > 1 else '') + ':\n\n' + seed_summary(runs)
+        + '\nEvery run:\n\n' + markdown_table(runs))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,5 +1,7 @@
 """Closed-loop metrics on hand-made records, where every figure is known."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -54,3 +56,30 @@ def test_record_round_trips_through_a_file(tmp_path):
     back = RunRecord.load(record.save(tmp_path / 'r.npz'))
     np.testing.assert_array_equal(back.O, record.O)
     assert back.meta == {'controller': 'x'} and back.mode_names == ['outer'] * 3
+
+
+def test_round_trips_without_k_are_left_out_and_a_run_without_k_gets_measured_metrics():
+    record = _record(np.full(100, 0.1), np.zeros(100))
+    partial = replace(record, K=np.r_[np.zeros(90), np.full(10, np.nan)],
+                      O=np.r_[np.full(90, 0.1), np.zeros(10)])
+    m = run_metrics(partial, ENVELOPE)
+    assert m['round_trips'] == 90 and m['round_trips_without_K'] == 10
+    assert m['mean_O'] == pytest.approx(0.1)
+    none = run_metrics(replace(record, K=np.full(100, np.nan)), ENVELOPE)
+    assert none['mean_O'] == pytest.approx(0.1) and none['round_trips_without_K'] == 100
+    assert none['oracle_ratio'] is None and none['locked_fraction'] is None
+
+
+def test_seed_summary_and_ratio_to_the_oracle_controller():
+    from dlmpc_ros.cli.evaluate import add_oracle_controller_ratio, seed_summary
+
+    runs = [{'scenario': 'steps', 'seed': seed, 'controller': name,
+             'metrics': {'mean_O': mean_o, 'oracle_ratio': mean_o / 0.2}}
+            for seed, name, mean_o in ((1, 'dlmpc', 0.1), (1, 'oracle', 0.2),
+                                       (2, 'dlmpc', 0.15), (2, 'oracle', 0.16))]
+    add_oracle_controller_ratio(runs)
+    assert [r['metrics']['oracle_controller_ratio'] for r in runs] == \
+        pytest.approx([0.5, 1.0, 0.9375, 1.0])
+    table = seed_summary(runs)
+    assert table.splitlines()[0] == '| scenario | dlmpc | oracle |'
+    assert table.splitlines()[2] == '| steps | 0.625 (0.500-0.750) | 0.900 (0.800-1.000) |'
