@@ -15,7 +15,10 @@ the angles for the next period:
   The first planned angles are applied (receding horizon), or the whole plan over N
   periods (``apply_all``, as in the paper).
 
-Angle limits and a maximum step per period (servo speed) are enforced on every command.
+While the measured O says the laser is off its pulse, a lock supervisor
+(:mod:`~dlmpc_ros.control.acquisition`) scans the map's curve until it locks (mode
+``acquire``). Angle limits and a maximum step per period (servo speed) are enforced on
+every command.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from dlmpc_ros.control.acquisition import AcquisitionConfig, LockSupervisor
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.step import ControlStep
 from dlmpc_ros.learning.features import features
@@ -50,6 +54,8 @@ class DLMPCConfig:
     """Errors below this count as accurate (iterations grow)."""
     error_memory: int = 3
     apply_all: bool = False
+    acquisition: AcquisitionConfig | None = field(default_factory=AcquisitionConfig)
+    """The lock acquisition scan (None: off)."""
 
     def __post_init__(self) -> None:
         if not 1 <= self.min_iterations <= self.start_iterations <= self.max_iterations:
@@ -63,8 +69,19 @@ class DLMPCController:
 
     name = 'dlmpc'
 
-    def __init__(self, kmap: KMap, mprnn: MPRNN, config: DLMPCConfig | None = None) -> None:
+    def __init__(self, kmap: KMap, mprnn: MPRNN, config: DLMPCConfig | None = None,
+                 target_objective: float | None = None) -> None:
+        """``target_objective`` is the mean O of the map's training targets (the map
+        file's ``subset_mean_O``); the lock threshold of the acquisition scan is
+        ``config.acquisition.lock_fraction`` times it. Without it (or with
+        ``config.acquisition`` None) there is no acquisition scan."""
         self.config = config or DLMPCConfig()
+        self.target_objective = target_objective
+        self.acquisition = None
+        if target_objective is not None and self.config.acquisition is not None:
+            self.acquisition = LockSupervisor(
+                self.config.acquisition.lock_fraction * target_objective, self.map_angles,
+                self.config.acquisition)
         self.kmap = kmap
         self.model = mprnn
         self.model.kmap = kmap
@@ -78,6 +95,15 @@ class DLMPCController:
         self._predicted_next: torch.Tensor | None = None   # (2,) v predicted for this step
         self._plan: torch.Tensor | None = None             # (N, 4) remaining plan
         self._queued: list[np.ndarray] = []                # apply_all: plan to play out
+
+    def fresh(self) -> DLMPCController:
+        """A controller with the same models and settings and no history."""
+        return DLMPCController(self.kmap, self.model, self.config, self.target_objective)
+
+    def map_angles(self, surrogate: float) -> np.ndarray:
+        """The map's angles (4,) [rad] for a surrogate value."""
+        with torch.no_grad():
+            return self.kmap(torch.tensor([[surrogate]], dtype=torch.float32))[0].numpy()
 
     def warm_up(self) -> None:
         """Run one forward and backward pass on zeros (no state touched), so that the first
@@ -105,6 +131,13 @@ class DLMPCController:
         surrogate = float('nan') if surrogate is None else float(surrogate)
         recent = float(np.mean(self.errors)) if self.errors else 0.0
         full = len(self.history) == self.history.maxlen
+        if self.acquisition is not None:
+            objective = measurement[0] / measurement[1] if measurement[1] > 0 else float('nan')
+            scan = self.acquisition.step(objective, current, surrogate)
+            if scan is not None:
+                self._plan, self._predicted_next, self._queued = None, None, []
+                return self._finish(current, scan, 'acquire', surrogate, error, np.array([]),
+                                    0, started, None)
         if self._queued and recent <= self.config.error_threshold:
             wanted = self._queued.pop(0)
             return self._finish(current, wanted, 'outer', surrogate, error, np.array([]), 0,
@@ -114,9 +147,7 @@ class DLMPCController:
             if not np.isfinite(surrogate):  # estimator silent: hold the angles
                 return self._finish(current, current, 'hold', surrogate, error, np.array([]),
                                     0, started, None)
-            with torch.no_grad():
-                wanted = self.kmap(torch.tensor([[surrogate]], dtype=torch.float32))[0]
-            return self._finish(current, wanted.numpy(), 'inner', surrogate, error,
+            return self._finish(current, self.map_angles(surrogate), 'inner', surrogate, error,
                                 np.array([]), 0, started, None)
         return self._plan_outer(current, surrogate, error, started)
 

@@ -32,8 +32,10 @@ def load_dlmpc(models_dir: Path, config: DLMPCConfig | None = None) -> DLMPCCont
     """The DL-MPC controller from ``models_dir/{kmap,mprnn}.pt`` (no file holds true K)."""
     from dlmpc_ros.learning.mprnn import load_mprnn
     from dlmpc_ros.learning.pipeline import load_kmap
-    kmap, _ = load_kmap(Path(models_dir) / 'kmap.pt')
-    return DLMPCController(kmap, load_mprnn(Path(models_dir) / 'mprnn.pt', kmap), config)
+    kmap, payload = load_kmap(Path(models_dir) / 'kmap.pt')
+    target = payload['metrics'].get('subset_mean_O')
+    return DLMPCController(kmap, load_mprnn(Path(models_dir) / 'mprnn.pt', kmap), config,
+                           target_objective=float(target) if target else None)
 
 
 def oracle_table(baselines: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

@@ -191,9 +191,13 @@ def plot_surrogate(model: ConditionalVAE, test: np.ndarray, k_test: np.ndarray,
 # -- K-to-angles map ---------------------------------------------------------------------------
 
 #: Subset rules tried by the map stage (intervals, delta, top candidates, jump penalty).
-RULE_CHOICES = tuple(SubsetRule(intervals=i, delta=d, top=t, jump_penalty=p) for i, d, t, p in
-                     ((61, 0.75, 5, 0.02), (41, 1.0, 10, 0.05), (31, 1.0, 10, 0.1),
-                      (21, 1.0, 20, 0.1), (15, 1.0, 20, 0.1)))
+#: Candidate subset rules: a weak jump penalty (the targets follow the best O of each
+#: interval across branches) and a strong one (one branch-continuous curve). The strong
+#: one is what holds lock in closed loop (docs/results/kmap-rules.md); the others are
+#: trained and measured for the record.
+SHIPPED_RULE = SubsetRule(intervals=21, delta=1.0, top=50, jump_penalty=10.0)
+RULE_CHOICES = (SubsetRule(intervals=21, delta=1.0, top=20, jump_penalty=0.1), SHIPPED_RULE,
+                SubsetRule(intervals=31, delta=1.0, top=50, jump_penalty=10.0))
 
 
 def evaluate_map(vae: ConditionalVAE, kmap: KMap, envelope: dict[str, np.ndarray],
@@ -226,25 +230,28 @@ def train_kmap_stage(paths: Paths, seed: int = 0, steps: int = 3000,
     steady = sweep['converged'] & sweep['finite']
     measured = measured_array(sweep)[steady]
     s = surrogate_of(vae, steady_windows(measured, vae.config.window))
-    # The subset rule's interval count and smoothing are chosen on the even K points of
-    # the envelope (validation); the figures below quote the odd ones (test) and all.
+    # Every candidate rule is measured on the even K points of the envelope (validation)
+    # by the steady O its map reaches from a typical state (the median-O converged sweep
+    # point at each K); the shipped rule was chosen in closed loop, where these one-shot
+    # figures did not rank the rules right (docs/results/kmap-rules.md). The figures below
+    # quote the odd K points (test) and all.
     val, test = np.arange(0, envelope['K'].size, 2), np.arange(1, envelope['K'].size, 2)
+    median_start = np.stack([_median_point(sweep, steady, k) for k in envelope['K']])
     trials = []
     for rule in RULE_CHOICES:
         centres, targets, target_o = training_subset(s, sweep['O'][steady],
                                                      sweep['alpha'][steady], rule)
         model, losses = train_kmap(centres, targets, KMapConfig(), seed=seed, steps=steps)
-        at_oracle = evaluate_map(vae, model, envelope, cavity_cfg, envelope['angles'])
-        trials.append((float(np.mean(at_oracle['ratio'][val])), rule, centres, targets,
-                       target_o, model, losses, at_oracle))
-    _, rule, centres, targets, target_o, model, losses, at_oracle = max(
-        trials, key=lambda trial: trial[0])
-    # A harder start: the median-O converged sweep point at each K.
-    median_start = np.stack([_median_point(sweep, steady, k) for k in envelope['K']])
-    at_median = evaluate_map(vae, model, envelope, cavity_cfg, median_start)
+        at_median = evaluate_map(vae, model, envelope, cavity_cfg, median_start)
+        trials.append((float(np.mean(at_median['ratio'][val])), rule, centres, targets,
+                       target_o, model, losses, at_median))
+    _, rule, centres, targets, target_o, model, losses, at_median = next(
+        trial for trial in trials if trial[1] == SHIPPED_RULE)
+    at_oracle = evaluate_map(vae, model, envelope, cavity_cfg, envelope['angles'])
     metrics = {
         'subset_rule': rule.__dict__, 'subset_size': int(centres.size),
-        'validation_ratio_per_rule': [{'rule': t[1].__dict__, 'validation_ratio': t[0]}
+        'validation_ratio_per_rule': [{'rule': t[1].__dict__,
+                                       'validation_ratio_from_median_state': t[0]}
                                       for t in trials],
         'oracle_ratio_test_k': float(np.mean(at_oracle['ratio'][test])),
         'subset_mean_O': float(target_o.mean()), 'final_loss': losses[-1],

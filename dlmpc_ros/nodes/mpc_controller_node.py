@@ -12,6 +12,7 @@ import sys
 
 from rclpy.experimental import EventsExecutor
 
+from dlmpc_ros.control.acquisition import AcquisitionConfig
 from dlmpc_ros.control.dlmpc import DLMPCConfig, DLMPCController
 from dlmpc_ros.control.factory import load_dlmpc
 from dlmpc_ros.learning.checkpoint import ModelFileError
@@ -26,6 +27,11 @@ DEFAULTS: dict[str, object] = {
     'error_threshold': _CFG.error_threshold, 'accurate_error': _CFG.accurate_error,
     'apply_all': _CFG.apply_all,
 }
+_ACQ = AcquisitionConfig()
+ACQUISITION_DEFAULTS: dict[str, object] = {
+    'acquire': True, 'lock_fraction': _ACQ.lock_fraction, 'acquire_patience': _ACQ.patience,
+    'acquire_dwell': _ACQ.dwell_periods,
+}
 DESCRIPTIONS = {
     'min_iterations': 'fewest gradient-ascent iterations per plan',
     'max_iterations': 'most gradient-ascent iterations per plan',
@@ -36,6 +42,11 @@ DESCRIPTIONS = {
     'accurate_error': 'prediction errors below this count as accurate (more iterations)',
     'apply_all': 'apply the whole N-period plan before re-planning (the paper) instead of '
                  'only its first step',
+    'acquire': 'scan the map for mode-locking while the measured O says the laser is off '
+               'its pulse',
+    'lock_fraction': 'locked when O >= this x the mean O of the map training targets',
+    'acquire_patience': 'unlocked control periods before the scan starts',
+    'acquire_dwell': 'control periods the scan waits at each point',
 }
 
 
@@ -43,10 +54,14 @@ class MPCControllerNode(ControllerNodeBase):
     uses_estimator = True
 
     def __init__(self) -> None:
-        super().__init__('mpc_controller', DEFAULTS, DESCRIPTIONS)
+        super().__init__('mpc_controller', {**DEFAULTS, **ACQUISITION_DEFAULTS}, DESCRIPTIONS)
+        v = self.values
         try:
-            config = DLMPCConfig(limits=self.limits,
-                                 **{name: self.values[name] for name in DEFAULTS})
+            acquisition = AcquisitionConfig(
+                lock_fraction=v['lock_fraction'], patience=v['acquire_patience'],
+                dwell_periods=v['acquire_dwell']) if v['acquire'] else None
+            config = DLMPCConfig(limits=self.limits, acquisition=acquisition,
+                                 **{name: v[name] for name in DEFAULTS})
         except (ValueError, TypeError) as err:
             raise params.StartupError(str(err)) from None
         try:
@@ -57,8 +72,7 @@ class MPCControllerNode(ControllerNodeBase):
         self.start()
 
     def fresh_controller(self) -> DLMPCController:
-        old = self.controller
-        return DLMPCController(old.kmap, old.model, old.config)
+        return self.controller.fresh()
 
 
 def main(args: list[str] | None = None) -> None:

@@ -75,12 +75,17 @@ def test_dlmpc_beats_passive_after_a_step_in_k_through_the_nodes(ros_env, tmp_pa
         [sys.executable, '-m', 'dlmpc_ros.cli.evaluate', '--scenario', 'steps',
          '--scenario-param', 'offset=0.0', '--scenario-param', 'times=300',
          '--scenario-param', 'values=0.25', '--controller', 'dlmpc', '--controller', 'passive',
-         '--seed', '2', '--round-trips', '2000', '--models-dir', str(MODELS),
+         '--seed', '3', '--round-trips', '2000', '--models-dir', str(MODELS),
          '--domain-id', ros_env['ROS_DOMAIN_ID'], '--out', str(out)],
         env=ros_env, capture_output=True, text=True, timeout=400)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     runs = {run['controller']: run['metrics'] for run in
             json.loads((out / 'metrics.json').read_text())['runs']}
-    assert runs['dlmpc']['mean_O'] > runs['passive']['mean_O'] * 1.03  # fast: 0.917 vs 0.852
+    assert runs['dlmpc']['mean_O'] > runs['passive']['mean_O'] * 1.03
+    # After the step has settled (round trips 600 to 2000) DL-MPC holds more O than the
+    # angles that were best before the step (fast mode: 0.206 against 0.184).
+    after = {name: RunRecord.load(out / f'steps-s3-{name}' / 'record.npz').O[600:].mean()
+             for name in ('dlmpc', 'passive')}
+    assert after['dlmpc'] > after['passive'] * 1.05, after
     assert (out / 'table.md').read_text().count('| steps |') == 3  # summary + 2 runs
-    assert (out / 'figures' / 'steps-s2-tracking.png').stat().st_size > 10_000
+    assert (out / 'figures' / 'steps-s3-tracking.png').stat().st_size > 10_000

@@ -150,8 +150,8 @@ def test_respawn_restarts_killed_nodes_while_the_laser_runs_on(ros_env, tmp_path
             f'came back at round trip {kill.back}; O there: {run["O"][kill.back - 1:][:500:50]}')
         if victim == 'vae_estimator':
             # States after the kill get no estimate until the new estimator runs: the
-            # controller holds or plans without a surrogate, and says so; then estimates
-            # are back for good.
+            # controller holds, plans or scans for lock without a surrogate, and says so;
+            # then estimates are back for good.
             gap = decisions[(decisions['round_trip'] > kill.killed + 50)
                             & (decisions['round_trip'] <= kill.back)]
             valid = gap['surrogate_valid'] == 1
@@ -160,7 +160,7 @@ def test_respawn_restarts_killed_nodes_while_the_laser_runs_on(ros_env, tmp_path
             assert len(silent), 'no decision while the estimator was away'
             assert valid[returned:].all()
             assert (silent['estimator_age'] != 0).all()  # periods since the last, or -1
-            assert {MODES[int(m)] for m in silent['mode']} <= {'hold', 'outer'}
+            assert {MODES[int(m)] for m in silent['mode']} <= {'hold', 'outer', 'acquire'}
         if victim == 'drift_injector':  # meanwhile K stood still, then moves again
             moves = np.flatnonzero(np.diff(run['K'][kill.killed + 20:kill.back + 200]))
             assert moves.size and moves[0] >= 30, f'K changes at {kill.killed + 20 + moves}'

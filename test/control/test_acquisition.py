@@ -1,0 +1,74 @@
+"""The DL-MPC's lock acquisition scan: when it takes over, where it goes, when it lets go."""
+
+import numpy as np
+import pytest
+import torch
+
+from dlmpc_ros.control.acquisition import AcquisitionConfig, LockSupervisor, scan_surrogates
+from dlmpc_ros.control.dlmpc import DLMPCConfig, DLMPCController
+from dlmpc_ros.learning.kmap import KMap, KMapConfig
+from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
+
+
+def _map(s: float) -> np.ndarray:
+    return np.array([0.1 * s, -0.1 * s, 0.2, 0.0])
+
+
+def test_scan_points_are_prior_quantiles():
+    points = scan_surrogates(5)
+    np.testing.assert_allclose(points, [-1.2816, -0.5244, 0.0, 0.5244, 1.2816], atol=1e-4)
+
+
+def test_supervisor_waits_then_scans_nearest_first_and_lets_go_on_lock():
+    sup = LockSupervisor(0.1, _map, AcquisitionConfig(patience=2, dwell_periods=2,
+                                                      scan_points=5))
+    here = np.zeros(4)
+    assert sup.step(0.2, here, 0.6) is None        # locked: remembers the surrogate
+    assert sup.step(0.01, here, 0.0) is None       # unlocked, patience 1
+    assert sup.step(0.01, here, 0.0) is None       # patience 2
+    first = sup.step(0.01, here, 0.0)              # scan: the point nearest 0.6 first
+    np.testing.assert_allclose(first, _map(scan_surrogates(5)[3]))
+    assert sup.step(0.01, here, 0.0) is first      # not there yet: keep going
+    assert sup.step(np.nan, first, 0.0) is first   # there: dwell 1 (NaN O is unlocked)
+    second = sup.step(0.01, first, 0.0)            # dwell 2 done: next nearest point
+    np.testing.assert_allclose(second, _map(scan_surrogates(5)[2]))
+    assert sup.step(0.15, second, 0.0) is None     # locked: the loops take over again
+    assert sup.unlocked == 0
+
+
+def test_a_point_the_servos_cannot_reach_is_left_after_travel_periods():
+    sup = LockSupervisor(0.1, _map, AcquisitionConfig(patience=1, dwell_periods=1,
+                                                      scan_points=3, travel_periods=3))
+    here = np.full(4, 1.0)
+    sup.step(0.0, here, 0.0)
+    targets = [sup.step(0.0, here, 0.0) for _ in range(5)]
+    assert targets[0] is targets[1] is targets[2]
+    assert not np.allclose(targets[3], targets[0])
+
+
+@pytest.mark.parametrize('bad', [{'lock_fraction': 0.0}, {'lock_fraction': 1.0},
+                                 {'patience': 0}, {'dwell_periods': 0}, {'scan_points': 0}])
+def test_bad_acquisition_settings_are_rejected(bad):
+    with pytest.raises(ValueError):
+        AcquisitionConfig(**bad)
+
+
+def test_dlmpc_scans_within_the_servo_limits_while_unlocked():
+    torch.manual_seed(0)
+    kmap = KMap(KMapConfig(hidden=16))
+    mprnn = MPRNN(MPRNNConfig(window=2, horizon=4, n_hidden=16, n_latent=8))
+    config = DLMPCConfig(acquisition=AcquisitionConfig(patience=3), error_threshold=1e6)
+    ctrl = DLMPCController(kmap, mprnn, config, target_objective=0.2)
+    assert ctrl.acquisition.threshold == pytest.approx(0.1)
+    angles = np.zeros(4)
+    modes = []
+    for _ in range(8):  # O = 0.3 / 30 = 0.01: off the pulse
+        step = ctrl.step(np.r_[0.3, 30.0, angles], 0.0)
+        assert np.abs(step.angles - angles).max() <= config.limits.max_step + 1e-12
+        modes.append(step.mode)
+        angles = step.angles
+    assert modes[:3] == ['inner'] * 3 and set(modes[3:]) == {'acquire'}
+    assert ctrl.step(np.r_[6.0, 30.0, angles], 0.0).mode != 'acquire'  # O = 0.2: locked
+    assert DLMPCController(kmap, mprnn, config).acquisition is None  # no target: no scan
+    fresh = ctrl.fresh()
+    assert fresh.acquisition is not ctrl.acquisition and fresh.acquisition.unlocked == 0
