@@ -179,8 +179,10 @@ def evaluate_bags(args: argparse.Namespace, envelope: dict) -> int:
     from dlmpc_ros.recording.export import bag_to_csv
 
     runs = []
+    names = [bag.resolve().name for bag in args.bag]
     for i, bag in enumerate(args.bag, 1):
-        run_dir = args.out / bag.resolve().name
+        label = names[i - 1] if names.count(names[i - 1]) == 1 else f'{names[i - 1]}-{i}'
+        run_dir = args.out / label
         try:
             report = bag_to_csv(bag, run_dir / 'run.csv')
             record = record_from_csv(report.run_csv, {'source': 'bag', 'bag': str(bag)})
@@ -191,7 +193,6 @@ def evaluate_bags(args: argparse.Namespace, envelope: dict) -> int:
         metrics['surrogate_abs_r'] = surrogate_correlation(record)
         record.save(run_dir / 'record.npz')
         (run_dir / 'metrics.json').write_text(json.dumps({**record.meta, **metrics}, indent=2))
-        label = bag.resolve().name
         runs.append({'scenario': 'bag', 'seed': '-', 'controller': label, 'metrics': metrics,
                      'meta': record.meta})
         if report.rows_with_k:

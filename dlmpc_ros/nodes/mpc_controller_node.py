@@ -1,4 +1,5 @@
-"""mpc_controller: the DL-MPC controller (MP-RNN planning, VAE surrogate + map inner loop).
+"""mpc_controller: the DL-MPC controller (MP-RNN planning, VAE surrogate + map inner loop,
+a lock acquisition scan while the laser is off its pulse).
 
 Subscribes ``/laser/state`` and ``/estimator/birefringence``; once per control period
 publishes ``/laser/angles_cmd`` and ``/controller/status``. It never reads the true K:
