@@ -118,3 +118,23 @@ def test_lockstep_laser_waits_for_each_command(ros_env, tmp_path, probe):
         assert list(states[10].data)[6:] == pytest.approx([0.1, 0.2, 0.3, 0.4])
     finally:
         assert node.stop() == 0
+
+
+@pytest.mark.parametrize('acquire', [True, False])
+def test_mpc_controller_scans_for_lock_while_the_laser_is_off_its_pulse(
+        ros_env, tmp_path, probe, acquire):
+    status = probe.listen(itf.TOPIC_CONTROLLER_STATUS)
+    node = _start(MPC, ros_env, tmp_path, 'period:=10', 'acquire_patience:=2',
+                  f'acquire:={str(acquire).lower()}')
+    try:
+        probe.wait_matched(itf.TOPIC_STATE)
+        probe.wait_matched(itf.TOPIC_ESTIMATE)
+        for r in range(1, 51):  # O = 0.3 / 30 = 0.01: no pulse
+            probe.publish(itf.TOPIC_STATE, _state(r, e=0.3, m=30.0), itf.STATE_FIELDS)
+            if r % 10 == 0:
+                probe.publish(itf.TOPIC_ESTIMATE, [r, 0.2, 0.5, 0.2, 0.1])
+        probe.spin_until(lambda: len(status) >= 5, 60, '5 decisions')
+        modes = [MODES[int(m.data[1])] for m in status]
+        assert modes == (['inner'] * 2 + ['acquire'] * 3 if acquire else ['inner'] * 5)
+    finally:
+        assert node.stop() == 0
