@@ -172,6 +172,15 @@ def _summary_line(metrics: dict) -> str:
             f"{text('step_latency_ms_median', '.2f')} ms")
 
 
+def _measure(record: RunRecord, envelope: dict, run_dir: Path, **extra) -> dict:
+    """The run's metrics (plus ``extra``), saved with its record in ``run_dir``."""
+    metrics = {**run_metrics(record, envelope), **extra,
+               'surrogate_abs_r': surrogate_correlation(record)}
+    record.save(run_dir / 'record.npz')
+    (run_dir / 'metrics.json').write_text(json.dumps({**record.meta, **metrics}, indent=2))
+    return metrics
+
+
 def evaluate_bags(args: argparse.Namespace, envelope: dict) -> int:
     """Metrics, table and figures of recorded bags (one folder per bag under OUT)."""
     from dlmpc_ros.evaluation.graph_run import record_from_csv
@@ -189,10 +198,7 @@ def evaluate_bags(args: argparse.Namespace, envelope: dict) -> int:
         except (BagError, OSError, ValueError) as err:
             print(f'dlmpc-evaluate: {bag}: {err}', file=sys.stderr)
             return 1
-        metrics = run_metrics(record, envelope)
-        metrics['surrogate_abs_r'] = surrogate_correlation(record)
-        record.save(run_dir / 'record.npz')
-        (run_dir / 'metrics.json').write_text(json.dumps({**record.meta, **metrics}, indent=2))
+        metrics = _measure(record, envelope, run_dir)
         runs.append({'scenario': 'bag', 'seed': '-', 'controller': label, 'metrics': metrics,
                      'meta': record.meta})
         if report.rows_with_k:
@@ -283,11 +289,7 @@ def main(argv: list[str] | None = None) -> int:
                   file=sys.stderr)
             return 1
         wall = time.monotonic() - started
-        metrics = run_metrics(record, envelope)
-        metrics['wall_seconds'] = round(wall, 2)
-        metrics['surrogate_abs_r'] = surrogate_correlation(record)
-        record.save(run_dir / 'record.npz')
-        (run_dir / 'metrics.json').write_text(json.dumps({**record.meta, **metrics}, indent=2))
+        metrics = _measure(record, envelope, run_dir, wall_seconds=round(wall, 2))
         runs.append({'scenario': scenario_name, 'seed': seed, 'controller': controller_name,
                      'metrics': metrics, 'meta': record.meta})
         records[(scenario_name, seed, controller_name)] = record
