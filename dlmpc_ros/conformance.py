@@ -185,6 +185,22 @@ def _stream_gap(samples: Sequence[Sample], start: float, end: float) -> float:
     return float(max(inner, samples[0].received - start, end - samples[-1].received))
 
 
+def _layout_problems(messages: Sequence, label: str, faults: Sequence[str | None],
+                     what: str = 'messages') -> list[str]:
+    """Problems with received messages' layout labels (expected ``label``) and contents
+    (``faults``: one :func:`~dlmpc_ros.interfaces.vector_fault`-style entry per message)."""
+    n = len(messages)
+    problems = []
+    labels = [x.label for x in messages if x.label != label]
+    if labels:
+        problems.append(f'{len(labels)} of {n} {what} have the layout label {labels[0]!r}; '
+                        f'expected {label!r}')
+    found = [f for f in faults if f is not None]
+    if found:
+        problems.append(f'{len(found)} of {n} {what} are malformed (first: {found[0]})')
+    return problems
+
+
 def _round_trip_problems(states: Sequence[Sample], period: int) -> list[str]:
     """Round trips that do not increase, and multiples of the period never published."""
     problems = []
@@ -228,13 +244,8 @@ def check_state_stream(states: Sequence[Sample], start: float, end: float, s: Se
     if n < 2:
         return _result(key, name, f'{n} messages in {end - start:.1f} s',
                        [*problems, f'only {n} /laser/state messages in {end - start:.1f} s'])
-    labels = [x.label for x in states if x.label != STATE_LABEL]
-    if labels:
-        problems.append(f'{len(labels)} of {n} messages have the layout label {labels[0]!r}; '
-                        f'expected {STATE_LABEL!r}')
-    faults = [f for f in (itf.state_fault(x.data) for x in states) if f is not None]
-    if faults:
-        problems.append(f'{len(faults)} of {n} messages are malformed (first: {faults[0]})')
+    problems += _layout_problems(states, STATE_LABEL,
+                                 [itf.state_fault(x.data) for x in states])
     problems += _round_trip_problems(states, s.period)
     sent = np.array([x.sent for x in states])
     intervals = np.diff(sent)
@@ -311,15 +322,9 @@ def check_objective(states: Sequence[Sample], objectives: Sequence[Sample],
     if n == 0:
         problems.append('no /laser/objective message')
     else:
-        labels = [x.label for x in objectives if x.label != 'O']
-        if labels:
-            problems.append(f'{len(labels)} of {n} objective messages have the layout label '
-                            f"{labels[0]!r}; expected 'O'")
-        faults = [f for f in (itf.vector_fault(x.data, itf.OBJECTIVE_FIELDS, 1e300)
-                              for x in objectives) if f is not None]
-        if faults:
-            problems.append(f'{len(faults)} of {n} objective messages are malformed '
-                            f'(first: {faults[0]})')
+        problems += _layout_problems(
+            objectives, 'O', [itf.vector_fault(x.data, itf.OBJECTIVE_FIELDS, 1e300)
+                              for x in objectives], 'objective messages')
         values = np.array([x.data[0] for x in objectives if len(x.data) == 1])
         known = np.sort(o)
         if values.size:
@@ -492,16 +497,9 @@ def check_status(statuses: Sequence[Sample], start: float, end: float, s: Settin
     if max_gap > s.status_timeout:
         problems.append(f'{max_gap:.2f} s without /laser/status (more than --status-timeout '
                         f'{s.status_timeout:g} s)')
-    labels = [x.label for x in statuses if x.label != STATUS_LABEL]
-    if labels:
-        problems.append(f'{len(labels)} of {n} messages have the layout label {labels[0]!r}; '
-                        f'expected {STATUS_LABEL!r}')
-    faults = [f for f in (itf.vector_fault(x.data, itf.LASER_STATUS_FIELDS, 1e300)
-                          for x in statuses) if f is not None]
-    if faults:
-        problems.append(f'{len(faults)} of {n} messages are malformed (first: {faults[0]})')
-    good = [x for x in statuses if itf.vector_fault(x.data, itf.LASER_STATUS_FIELDS, 1e300)
-            is None]
+    faults = [itf.vector_fault(x.data, itf.LASER_STATUS_FIELDS, 1e300) for x in statuses]
+    problems += _layout_problems(statuses, STATUS_LABEL, faults)
+    good = [x for x, fault in zip(statuses, faults) if fault is None]
     figures: dict[str, float] = {'messages': n, 'max_gap_s': max_gap}
     summary = f'{n} messages, max gap {max_gap:.2f} s'
     if good:
