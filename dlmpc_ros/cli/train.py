@@ -4,6 +4,8 @@
 datasets of ``dlmpc-data`` and writes ``models/{vae,kmap,mprnn}.pt``, the baseline angle
 tables ``models/oracle.npz`` (+ ``.json``), ``models/metrics.json``, ``models/figures/``
 and ``models/MODEL_CARD.md``. ``--quick`` trains tiny models for tests.
+``check-estimator`` measures where the shipped estimator's surrogate gets its information
+(angles or E and M; needs true K, so it is an evaluation) and writes a report to ``--out``.
 """
 
 from __future__ import annotations
@@ -21,10 +23,13 @@ from dlmpc_ros.learning.pipeline import (Paths, train_kmap_stage, train_vae_stag
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog='dlmpc-train', description=__doc__.split('\n\n')[0])
-    p.add_argument('stage', choices=('all', 'vae', 'kmap', 'mprnn', 'baselines'))
+    p.add_argument('stage', choices=('all', 'vae', 'kmap', 'mprnn', 'baselines',
+                                          'check-estimator'))
     p.add_argument('--data-dir', type=Path, default=Path('data'))
     p.add_argument('--models-dir', type=Path, default=Path('models'))
     p.add_argument('--seed', type=int, default=0)
+    p.add_argument('--out', type=Path, default=Path('out/estimator-check'),
+                   help='check-estimator: where its report goes')
     p.add_argument('--quick', action='store_true', help='tiny training runs for tests')
     p.add_argument('--no-progress', action='store_true')
     args = p.parse_args(argv)
@@ -58,6 +63,12 @@ def main(argv: list[str] | None = None) -> int:
             ratios = {name: round(r['oracle_ratio'], 3)
                       for name, r in metrics['closed_loop'][first].items()}
             print(f'baselines: closed-loop O/O* on {first}: {ratios}', flush=True)
+        if args.stage == 'check-estimator':
+            from dlmpc_ros.learning.identifiability import ProbeConfig, check_estimator
+            check_estimator(paths, args.out, ProbeConfig(epochs=2 if args.quick else 40),
+                            show_progress=show)
+            print(f'check-estimator: report in {args.out}/report.md', flush=True)
+            return 0
     except (FileNotFoundError, ModelFileError, ValueError) as err:
         print(f'dlmpc-train: {err}', file=sys.stderr)
         return 2

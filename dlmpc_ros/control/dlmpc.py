@@ -15,6 +15,13 @@ the angles for the next period:
   The first planned angles are applied (receding horizon), or the whole plan over N
   periods (``apply_all``, as in the paper).
 
+The predictor is scored only while it plans, so by default the outer loop, once its error
+has passed the threshold, stays off (the shipped setting: re-arming it costs objective in
+closed loop, ``bench/results/outer_loop.md``). ``monitor_prediction`` keeps scoring it in
+every mode so that it can take over again; ``trust_radius`` bounds how far a plan may move
+from the current angles, and ``objective_guard`` hands back to the inner loop when the
+measured O under the outer loop falls.
+
 While the measured O says the laser is off its pulse, a lock supervisor
 (:mod:`~dlmpc_ros.control.acquisition`) scans the map's curve until it locks (mode
 ``acquire``). Angle limits and a maximum step per period (servo speed) are enforced on
@@ -54,6 +61,17 @@ class DLMPCConfig:
     """Errors below this count as accurate (iterations grow)."""
     error_memory: int = 3
     apply_all: bool = False
+    monitor_prediction: bool = False
+    """Score the predictor's one-step forecast in every mode, not only in the outer loop,
+    so that the outer loop can take over again after a spell of poor predictions."""
+    trust_radius: float | None = None
+    """Largest distance [rad] of a planned angle from the current angle (None: no limit);
+    keeps the plan where the predictor was trained, instead of where it is wrong."""
+    objective_guard: float | None = None
+    """If set: when the measured O under the outer loop falls below this fraction of the O
+    last measured under the inner loop, go back to the inner loop for ``guard_cooldown``
+    periods (the predictor's plans are trusted only while they do not lose objective)."""
+    guard_cooldown: int = 50
     acquisition: AcquisitionConfig | None = field(default_factory=AcquisitionConfig)
     """The lock acquisition scan (None: off)."""
 
@@ -62,6 +80,12 @@ class DLMPCConfig:
             raise ValueError('need 1 <= min_iterations <= start_iterations <= max_iterations')
         if not (self.learning_rate > 0 and self.error_threshold > 0 and self.accurate_error > 0):
             raise ValueError('learning_rate, error_threshold and accurate_error must be > 0')
+        if self.trust_radius is not None and not self.trust_radius > 0:
+            raise ValueError('trust_radius must be > 0 (or None)')
+        if self.objective_guard is not None and not 0 < self.objective_guard <= 1:
+            raise ValueError('objective_guard must be in (0, 1] (or None)')
+        if self.guard_cooldown < 1:
+            raise ValueError('guard_cooldown must be >= 1')
 
 
 class DLMPCController:
@@ -95,6 +119,9 @@ class DLMPCController:
         self._predicted_next: torch.Tensor | None = None   # (2,) v predicted for this step
         self._plan: torch.Tensor | None = None             # (N, 4) remaining plan
         self._queued: list[np.ndarray] = []                # apply_all: plan to play out
+        self._last_mode = ''                               # mode of the previous step
+        self._inner_objective: float | None = None         # O last measured after 'inner'
+        self._blocked = 0                                  # periods the guard still blocks
 
     def fresh(self) -> DLMPCController:
         """A controller with the same models and settings and no history."""
@@ -131,18 +158,19 @@ class DLMPCController:
         surrogate = float('nan') if surrogate is None else float(surrogate)
         recent = float(np.mean(self.errors)) if self.errors else 0.0
         full = len(self.history) == self.history.maxlen
+        objective = measurement[0] / measurement[1] if measurement[1] > 0 else float('nan')
         if self.acquisition is not None:
-            objective = measurement[0] / measurement[1] if measurement[1] > 0 else float('nan')
             scan = self.acquisition.step(objective, current, surrogate)
             if scan is not None:
                 self._plan, self._predicted_next, self._queued = None, None, []
                 return self._finish(current, scan, 'acquire', surrogate, error, np.array([]),
                                     0, started, None)
-        if self._queued and recent <= self.config.error_threshold:
+        blocked = self._guard(objective)
+        if self._queued and recent <= self.config.error_threshold and not blocked:
             wanted = self._queued.pop(0)
             return self._finish(current, wanted, 'outer', surrogate, error, np.array([]), 0,
                                 started, None)
-        if not full or recent > self.config.error_threshold:
+        if not full or recent > self.config.error_threshold or blocked:
             self._plan, self._predicted_next, self._queued = None, None, []
             if not np.isfinite(surrogate):  # estimator silent: hold the angles
                 return self._finish(current, current, 'hold', surrogate, error, np.array([]),
@@ -150,6 +178,20 @@ class DLMPCController:
             return self._finish(current, self.map_angles(surrogate), 'inner', surrogate, error,
                                 np.array([]), 0, started, None)
         return self._plan_outer(current, surrogate, error, started)
+
+    def _guard(self, objective: float) -> bool:
+        """Update the objective guard with this period's O; True: outer loop blocked."""
+        fraction = self.config.objective_guard
+        if fraction is None:
+            return False
+        if self._blocked > 0:
+            self._blocked -= 1
+        if self._last_mode == 'inner' and np.isfinite(objective):
+            self._inner_objective = objective
+        elif (self._last_mode == 'outer' and self._inner_objective is not None
+              and not objective >= fraction * self._inner_objective):
+            self._blocked = self.config.guard_cooldown
+        return self._blocked > 0
 
     def _plan_outer(self, current, surrogate, error, started) -> ControlStep:
         history = torch.stack(list(self.history))[None]                 # (1, N + 2b, 10)
@@ -160,11 +202,17 @@ class DLMPCController:
             seed = torch.cat([self._plan[1:], self._plan[-1:]])         # shift the old plan
         plan = seed.clone().requires_grad_(True)
         optimizer = torch.optim.Adam([plan], lr=self.config.learning_rate)
+        centre = torch.as_tensor(current, dtype=plan.dtype)
+        radius = self.config.trust_radius
         for _ in range(self.iterations):
             optimizer.zero_grad()
             out = self.model(history, plan[None])
             (-out.objective.sum()).backward()
             optimizer.step()
+            if radius is not None:
+                with torch.no_grad():
+                    plan.copy_(torch.maximum(torch.minimum(plan, centre + radius),
+                                             centre - radius))
         plan = plan.detach()
         # The first control is what the servos can reach; predict with exactly that.
         plan[0] = torch.as_tensor(self.config.limits.apply(current, plan[0].numpy()),
@@ -177,10 +225,24 @@ class DLMPCController:
         return self._finish(current, plan[0].numpy(), 'outer', surrogate, error,
                             out.objective[0].numpy(), self.iterations, started, out.v[0, 0])
 
+    def _predict_next(self, angles: np.ndarray) -> torch.Tensor:
+        """The MP-RNN's next normalized state (2,) if ``angles`` (4,) are held."""
+        history = torch.stack(list(self.history))[None]                 # (1, N + 2b, 10)
+        plan = torch.as_tensor(angles, dtype=torch.float32).expand(
+            1, self.model.config.horizon, 4)
+        with torch.no_grad():
+            return self.model(history, plan).v[0, 0]
+
     def _finish(self, current, wanted, mode, surrogate, error, predicted, iterations, started,
                 predicted_next) -> ControlStep:
         angles = self.config.limits.apply(current, wanted)
+        if predicted_next is None and self.config.monitor_prediction \
+                and len(self.history) == self.history.maxlen:
+            # Outside the outer loop, keep scoring the predictor on what is applied, so the
+            # outer loop takes over again once its predictions are accurate.
+            predicted_next = self._predict_next(angles)
         self._predicted_next = predicted_next
+        self._last_mode = mode
         return ControlStep(angles=angles, mode=mode, surrogate=surrogate,
                            prediction_error=error, predicted_objective=predicted,
                            iterations=iterations,

@@ -26,8 +26,11 @@ DEFAULTS: dict[str, object] = {
     'min_iterations': _CFG.min_iterations, 'max_iterations': _CFG.max_iterations,
     'start_iterations': _CFG.start_iterations, 'learning_rate': _CFG.learning_rate,
     'error_threshold': _CFG.error_threshold, 'accurate_error': _CFG.accurate_error,
-    'apply_all': _CFG.apply_all,
+    'apply_all': _CFG.apply_all, 'monitor_prediction': _CFG.monitor_prediction,
+    'guard_cooldown': _CFG.guard_cooldown,
 }
+#: Settings that are off when None in DLMPCConfig and off when 0.0 as parameters.
+OPTIONAL_DEFAULTS: dict[str, float] = {'trust_radius': 0.0, 'objective_guard': 0.0}
 _ACQ = AcquisitionConfig()
 ACQUISITION_DEFAULTS: dict[str, object] = {
     'acquire': True, 'lock_fraction': _ACQ.lock_fraction, 'acquire_patience': _ACQ.patience,
@@ -43,6 +46,13 @@ DESCRIPTIONS = {
     'accurate_error': 'prediction errors below this count as accurate (more iterations)',
     'apply_all': 'apply the whole N-period plan before re-planning (the paper) instead of '
                  'only its first step',
+    'monitor_prediction': 'keep scoring the predictor in the inner loop, so that the outer '
+                          'loop takes over again once its error is back under the threshold '
+                          '(off: after its first error spike the outer loop stays off)',
+    'trust_radius': 'largest distance of a planned angle from the current one [rad]; 0: none',
+    'objective_guard': 'back to the inner loop when O under the outer loop falls below this '
+                       'fraction of the O under the inner loop; 0: off',
+    'guard_cooldown': 'control periods the objective guard keeps the outer loop off',
     'acquire': 'scan the map for mode-locking while the measured O says the laser is off '
                'its pulse',
     'lock_fraction': 'locked when O >= this x the mean O of the map training targets',
@@ -55,14 +65,16 @@ class MPCControllerNode(ControllerNodeBase):
     uses_estimator = True
 
     def __init__(self) -> None:
-        super().__init__('mpc_controller', {**DEFAULTS, **ACQUISITION_DEFAULTS}, DESCRIPTIONS)
+        super().__init__('mpc_controller',
+                         {**DEFAULTS, **OPTIONAL_DEFAULTS, **ACQUISITION_DEFAULTS}, DESCRIPTIONS)
         v = self.values
         try:
             acquisition = AcquisitionConfig(
                 lock_fraction=v['lock_fraction'], patience=v['acquire_patience'],
                 dwell_periods=v['acquire_dwell']) if v['acquire'] else None
             config = DLMPCConfig(limits=self.limits, acquisition=acquisition,
-                                 **{name: v[name] for name in DEFAULTS})
+                                 **{name: v[name] for name in DEFAULTS},
+                                 **{name: v[name] or None for name in OPTIONAL_DEFAULTS})
         except (ValueError, TypeError) as err:
             raise params.StartupError(str(err)) from None
         try:

@@ -1,5 +1,7 @@
 """The VAE estimator and the K-to-angles map, trained on the tiny dataset."""
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -112,6 +114,15 @@ def test_train_command_builds_every_model_file_and_the_card(quick_data, tmp_path
     assert out.u.shape == (2, model.config.horizon, 4)
     card = (models / 'MODEL_CARD.md').read_text()
     assert '| vae |' in card and '| mprnn |' in card
+
+    report = tmp_path / 'check'
+    assert train_main(['check-estimator', '--quick', '--no-progress', '--data-dir',
+                       str(quick_data), '--models-dir', str(models), '--out', str(report)]) == 0
+    result = json.loads((report / 'metrics.json').read_text())
+    assert set(result['surrogate_abs_r']) == {'trajectories', 'trajectories_angles_only',
+                                              'trajectories_E_M_only', 'sweep'}
+    assert 'angles only' in (report / 'report.md').read_text()
+    assert (report / 'surrogate_sources.png').stat().st_size > 10_000
 
 
 def test_train_command_says_how_to_make_missing_inputs(tmp_path, capsys):

@@ -66,6 +66,8 @@ CASES = {
     'mpc-iterations': (MPC, ['-p', 'min_iterations:=5', '-p', 'max_iterations:=2'],
                        ['min_iterations <= start_iterations <= max_iterations']),
     'mpc-lock-fraction': (MPC, ['-p', 'lock_fraction:=1.5'], ['lock_fraction must be in (0, 1)']),
+    'mpc-objective-guard': (MPC, ['-p', 'objective_guard:=1.5'],
+                            ['objective_guard must be in (0, 1]']),
     'mpc-no-models': (MPC, ['-p', 'models_dir:=/nonexistent'], ['is missing', 'dlmpc-train']),
     'mpc-corrupt': (MPC, ['-p', 'models_dir:={models}'], ['kmap.pt is corrupt',
                                                           'dlmpc-train kmap']),
