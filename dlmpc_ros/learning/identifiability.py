@@ -81,9 +81,14 @@ def probe_r(measured: np.ndarray, k: np.ndarray, train: np.ndarray, norm: Normal
     measured: (N, 6), or (N, w, 6) windows (K of the last row); k: (N,) true K; train: (N,)
     booleans.
     """
-    torch.manual_seed(config.seed)
     x = features(torch.as_tensor(measured, dtype=torch.float64), norm)[..., PROBE_INPUTS[inputs]]
-    x = x.flatten(1).float()
+    return probe_features_r(x.flatten(1).float(), k, train, config)
+
+
+def probe_features_r(x: torch.Tensor, k: np.ndarray, train: np.ndarray,
+                     config: ProbeConfig = ProbeConfig()) -> float:
+    """:func:`probe_r` on ready-made features x (N, F)."""
+    torch.manual_seed(config.seed)
     scale = float(np.std(k[train])) or 1.0
     y = torch.as_tensor(k / scale, dtype=torch.float32)
     net = nn.Sequential(nn.Linear(x.shape[1], config.hidden), nn.ReLU(),
