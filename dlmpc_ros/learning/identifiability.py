@@ -18,6 +18,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -25,6 +27,9 @@ from torch import nn
 
 from dlmpc_ros.learning.features import Normalizer, features
 from dlmpc_ros.learning.fit import fit
+
+if TYPE_CHECKING:
+    from dlmpc_ros.learning.pipeline import Paths
 
 #: Surrogate of single measurements: (N, 6) ``(E, M, 4 angles)`` -> (N,).
 SurrogateFn = Callable[[np.ndarray], np.ndarray]
@@ -117,12 +122,11 @@ def probe_table(measured: np.ndarray, k: np.ndarray, train: np.ndarray, norm: No
 
 # -- the check on shipped models and datasets -----------------------------------------------
 
-def check_estimator(paths, out_dir, config: ProbeConfig = ProbeConfig(),
+def check_estimator(paths: Paths, out_dir: Path, config: ProbeConfig = ProbeConfig(),
                     show_progress: bool = True) -> dict:
-    """Run every check on the models and data of ``paths`` (a pipeline ``Paths``); write
-    ``metrics.json``, ``report.md`` and ``surrogate_sources.png`` into ``out_dir``."""
+    """Run every check on the models and data of ``paths``; write ``metrics.json``,
+    ``report.md`` and ``surrogate_sources.png`` into ``out_dir``."""
     import json
-    from pathlib import Path
 
     from dlmpc_ros.learning import shards
     from dlmpc_ros.learning.pipeline import load_vae, measured_array, surrogate_of
@@ -147,8 +151,9 @@ def check_estimator(paths, out_dir, config: ProbeConfig = ProbeConfig(),
     sweep_measured, sweep_k = measured_array(sweep)[steady], sweep['K'][steady]
     sweep_train = np.random.default_rng(config.seed).random(sweep_k.size) < 0.8
     norm = Normalizer(**vae.config.normalizer)
-    if vae.config.window != 1:
-        print('note: the trajectory figures repeat each measurement over the window')
+    if vae.config.window != 1 and show_progress:
+        print(f'note: a window-{vae.config.window} model sees each measurement repeated '
+              'over its window here', flush=True)
     sources = surrogate_sources(surrogate, traj_measured[~traj_train], traj_k[~traj_train],
                                 sweep_measured, sweep_k)
     if show_progress:
@@ -201,7 +206,7 @@ def _report(result: dict) -> str:
 
 
 def _plot(surrogate: SurrogateFn, traj: np.ndarray, k_traj: np.ndarray, sweep: np.ndarray,
-          k_sweep: np.ndarray, path, points: int = 4000) -> None:
+          k_sweep: np.ndarray, path: Path, points: int = 4000) -> None:
     import matplotlib
 
     matplotlib.use('Agg')
