@@ -1,8 +1,8 @@
 """Closed-loop ablation of DL-MPC settings: each variant on every scenario and seed.
 
-A variant is a set of :class:`DLMPCConfig` overrides; every run uses the fast closed loop
-and the same scenarios, initial angles and models as ``dlmpc-evaluate --fast``, so a
-variant with no overrides reproduces the DL-MPC column of ``make evaluate``.
+A variant is a set of :class:`DLMPCConfig` overrides; every run goes through
+``dlmpc-evaluate --fast``'s own run (same scenarios, initial angles, servo limit and
+models), so a variant with no overrides reproduces the DL-MPC column of ``make evaluate``.
 
 Usage::
 
@@ -30,27 +30,22 @@ SCENARIOS = ('sinusoidal', 'chirp', 'random_walk', 'steps')
 
 def run_one(job: tuple[str, dict, str, int, int, str]) -> dict:
     """One closed-loop run: (variant, overrides, scenario, seed, round trips, models)."""
-    from dlmpc_ros.cli.evaluate import PRESETS
-    from dlmpc_ros.control.dlmpc import DLMPCConfig
-    from dlmpc_ros.control.factory import load_dlmpc, load_estimator
-    from dlmpc_ros.control.limits import AngleLimits
+    import tempfile
+
+    from dlmpc_ros.cli.evaluate import parse_args
+    from dlmpc_ros.cli.evaluate import run_one as evaluate_run
     from dlmpc_ros.control.step import MODES
-    from dlmpc_ros.core.drift import make_scenario
-    from dlmpc_ros.evaluation.closed_loop import random_initial_angles, run_closed_loop
     from dlmpc_ros.evaluation.metrics import run_metrics
     from dlmpc_ros.learning.baselines import load_baselines
 
     name, overrides, scenario, seed, round_trips, models = job
-    models_dir = Path(models)
-    settings = dict(PRESETS[scenario])
-    if scenario == 'random_walk':
-        settings['seed'] = seed
-    config = DLMPCConfig(**{'limits': AngleLimits(max_step=0.25), **overrides})
-    started = time.monotonic()
-    record = run_closed_loop(load_dlmpc(models_dir, config), make_scenario(scenario, **settings),
-                             round_trips, 10, random_initial_angles(seed),
-                             estimator=load_estimator(models_dir))
-    metrics = run_metrics(record, load_baselines(models_dir / 'oracle.npz'))
+    with tempfile.TemporaryDirectory() as scratch:
+        args = parse_args(['--fast', '--scenario', scenario, '--seed', str(seed),
+                           '--round-trips', str(round_trips), '--models-dir', models,
+                           '--out', scratch])
+        started = time.monotonic()
+        record = evaluate_run(args, scenario, 'dlmpc', seed, Path(scratch), overrides)
+    metrics = run_metrics(record, load_baselines(Path(models) / 'oracle.npz'))
     modes = np.asarray(record.mode)
     return {'variant': name, 'scenario': scenario, 'seed': seed,
             'wall_seconds': round(time.monotonic() - started, 1),

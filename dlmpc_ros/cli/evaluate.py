@@ -99,7 +99,6 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         AngleLimits(max_step=args.max_step)
     except ValueError as err:
         p.error(str(err))
-    args.models_dir = args.models_dir or default_models_dir()
     return args
 
 
@@ -113,7 +112,11 @@ def _setting_strings(settings: dict[str, object]) -> list[str]:
 
 
 def run_one(args: argparse.Namespace, scenario_name: str, controller_name: str, seed: int,
-            run_dir: Path) -> RunRecord:
+            run_dir: Path, dlmpc_overrides: dict | None = None) -> RunRecord:
+    """One closed-loop run; ``dlmpc_overrides`` (fast mode only) are DLMPCConfig fields
+    that replace the defaults, for ablations (``bench/dlmpc_variants.py``)."""
+    if dlmpc_overrides and not args.fast:
+        raise ValueError('DL-MPC overrides apply to fast mode only')
     settings = dict(args.settings[scenario_name])
     if scenario_name == 'random_walk':
         settings.setdefault('seed', seed)
@@ -136,7 +139,8 @@ def run_one(args: argparse.Namespace, scenario_name: str, controller_name: str, 
     estimator = None
     if controller_name == 'dlmpc':
         from dlmpc_ros.control.dlmpc import DLMPCConfig
-        controller = load_dlmpc(args.models_dir, DLMPCConfig(limits=limits))
+        controller = load_dlmpc(args.models_dir,
+                                DLMPCConfig(limits=limits, **(dlmpc_overrides or {})))
         estimator = load_estimator(args.models_dir)
     else:
         controller = make_baseline(controller_name, args.models_dir, limits,

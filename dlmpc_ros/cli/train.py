@@ -24,7 +24,7 @@ from dlmpc_ros.learning.pipeline import (Paths, train_kmap_stage, train_vae_stag
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog='dlmpc-train', description=__doc__.split('\n\n')[0])
     p.add_argument('stage', choices=('all', 'vae', 'kmap', 'mprnn', 'baselines',
-                                          'check-estimator'))
+                                     'check-estimator'))
     p.add_argument('--data-dir', type=Path, default=Path('data'))
     p.add_argument('--models-dir', type=Path, default=Path('models'))
     p.add_argument('--seed', type=int, default=0)

@@ -43,6 +43,17 @@ def abs_r(a: np.ndarray, b: np.ndarray) -> float:
     return float(abs(np.corrcoef(a, b)[0, 1]))
 
 
+#: Columns of a measurement (N, 6).
+E_M, ANGLES = slice(0, 2), slice(2, 6)
+
+
+def frozen(measured: np.ndarray, columns: slice) -> np.ndarray:
+    """A copy of measurements (N, 6) with ``columns`` held at their medians."""
+    out = measured.copy()
+    out[:, columns] = np.median(measured[:, columns], axis=0)
+    return out
+
+
 def surrogate_sources(surrogate: SurrogateFn, trajectories: np.ndarray, k_traj: np.ndarray,
                       sweep: np.ndarray, k_sweep: np.ndarray) -> dict[str, float]:
     """|r| between surrogate and true K with each input source on its own.
@@ -50,14 +61,10 @@ def surrogate_sources(surrogate: SurrogateFn, trajectories: np.ndarray, k_traj: 
     trajectories: (N, 6) held-out trajectory measurements with true K ``k_traj`` (N,);
     sweep: (S, 6) steady states of the sweep with their K ``k_sweep`` (S,).
     """
-    angles_only = trajectories.copy()
-    angles_only[:, :2] = np.median(trajectories[:, :2], axis=0)
-    measurement_only = trajectories.copy()
-    measurement_only[:, 2:] = np.median(trajectories[:, 2:], axis=0)
     return {
         'trajectories': abs_r(surrogate(trajectories), k_traj),
-        'trajectories_angles_only': abs_r(surrogate(angles_only), k_traj),
-        'trajectories_E_M_only': abs_r(surrogate(measurement_only), k_traj),
+        'trajectories_angles_only': abs_r(surrogate(frozen(trajectories, E_M)), k_traj),
+        'trajectories_E_M_only': abs_r(surrogate(frozen(trajectories, ANGLES)), k_traj),
         'sweep': abs_r(surrogate(sweep), k_sweep),
     }
 
@@ -86,14 +93,9 @@ def probe_r(measured: np.ndarray, k: np.ndarray, train: np.ndarray, norm: Normal
     measured: (N, 6), or (N, w, 6) windows (K of the last row); k: (N,) true K; train: (N,)
     booleans.
     """
-    x = features(torch.as_tensor(measured, dtype=torch.float64), norm)[..., PROBE_INPUTS[inputs]]
-    return probe_features_r(x.flatten(1).float(), k, train, config)
-
-
-def probe_features_r(x: torch.Tensor, k: np.ndarray, train: np.ndarray,
-                     config: ProbeConfig = ProbeConfig()) -> float:
-    """:func:`probe_r` on ready-made features x (N, F)."""
     torch.manual_seed(config.seed)
+    x = features(torch.as_tensor(measured, dtype=torch.float64), norm)[..., PROBE_INPUTS[inputs]]
+    x = x.flatten(1).float()
     scale = float(np.std(k[train])) or 1.0
     y = torch.as_tensor(k / scale, dtype=torch.float32)
     net = nn.Sequential(nn.Linear(x.shape[1], config.hidden), nn.ReLU(),
@@ -213,10 +215,8 @@ def _plot(surrogate: SurrogateFn, traj: np.ndarray, k_traj: np.ndarray, sweep: n
     import matplotlib.pyplot as plt
 
     rng = np.random.default_rng(0)
-    angles_only = traj.copy()
-    angles_only[:, :2] = np.median(traj[:, :2], axis=0)
     panels = [('held-out trajectories', traj, k_traj),
-              ('trajectories, E and M frozen', angles_only, k_traj),
+              ('trajectories, E and M frozen', frozen(traj, E_M), k_traj),
               ('steady-state sweep', sweep, k_sweep)]
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.6), sharey=True)
     for ax, (title, measured, k) in zip(axes, panels):
