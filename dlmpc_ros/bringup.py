@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dlmpc_ros import interfaces as itf
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.drift import SCENARIOS, make_scenario, parse_settings
 from dlmpc_ros.graph import NodeGraph, NodeProcess
@@ -41,6 +42,14 @@ NODES = {
 }
 CONTROLLER_CHOICES = ('dlmpc', 'esc', 'passive', 'fixed_best', 'oracle', 'none')
 #: Nodes that subscribe /laser/state (the simulator holds round trip 1 until they do).
+#: Topics each node publishes that the recorder waits for before the run starts.
+PUBLISHES = {
+    'laser_sim': (itf.TOPIC_SIM_TRUTH, itf.TOPIC_OBJECTIVE, itf.TOPIC_LASER_STATUS),
+    'drift_injector': (itf.TOPIC_BIREFRINGENCE,),
+    'vae_estimator': (itf.TOPIC_ESTIMATE,),
+    'mpc_controller': (itf.TOPIC_ANGLES_CMD, itf.TOPIC_CONTROLLER_STATUS),
+    'baseline_controller': (itf.TOPIC_ANGLES_CMD, itf.TOPIC_CONTROLLER_STATUS),
+}
 STATE_READERS = ('drift_injector', 'vae_estimator', 'mpc_controller', 'baseline_controller',
                  'recorder')
 DEFAULT_DOMAIN_ID = 87
@@ -196,7 +205,9 @@ def build_graph(args: argparse.Namespace, env: dict[str, str], log_dir: Path) ->
                 overrides.update(controller=args.controller,
                                  initial_birefringence=float(scenario(1)))
         elif name == 'recorder':
-            overrides = {'output': str(args.record.resolve())}
+            overrides = {'output': str(args.record.resolve()),
+                         'wait_for_publishers': ','.join(
+                             t for n in args.nodes for t in PUBLISHES.get(n, ()))}
         nodes.append(NodeProcess(name, module, config_file(params), overrides,
                                  respawn=name in args.respawn, stop_last=name == 'recorder'))
     return NodeGraph(nodes, env, log_dir, max_restarts=args.max_restarts)

@@ -22,6 +22,7 @@ import time
 from dataclasses import fields
 
 import numpy as np
+from rclpy.duration import Duration
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
@@ -239,11 +240,16 @@ class LaserSimNode(Node):
                 self._stop.wait(max(0.0, next_time - time.monotonic()))
 
     def stop(self) -> None:
-        """Stop the worker thread and wait for it (call before destroying the node)."""
+        """Stop the worker thread and wait for it, then give the reliable readers up to a
+        second to acknowledge the last round trips (call before destroying the node), so
+        that a recorder does not miss the last state while holding its truth."""
         self._stop.set()
         with self._lock:
             self._lock.notify_all()
         self._worker.join()
+        if self.context.ok():
+            for publisher in (self._truth_pub, self._state_pub):
+                publisher.wait_for_all_acked(Duration(seconds=1.0))
 
 
 def main(args: list[str] | None = None) -> None:

@@ -3,8 +3,9 @@
 Subscribes, raw (messages are never deserialized), to every topic whose name starts with
 one of ``topics_prefixes``: the project's own topics (:data:`dlmpc_ros.ros.io.QOS`) from
 the start, so that nothing is lost to discovery, and any other topic as the periodic
-graph discovery finds it. ``/laser/state`` is subscribed last: ``laser_sim``'s
-``wait_for_subscribers`` counts its readers, so the others are matched before it runs.
+graph discovery finds it. ``/laser/state`` is subscribed last, once the publishers named
+in ``wait_for_publishers`` are matched: ``laser_sim``'s ``wait_for_subscribers`` counts
+its readers, so the others are matched before it runs.
 A topic enters the bag with its first message, with its publishers' QoS profiles. On
 SIGINT/SIGTERM the bag is closed and the message counts are logged; a recorder killed
 harder loses at most ``flush_period`` seconds (``dlmpc-bag repair`` restores the rest).
@@ -28,12 +29,16 @@ from dlmpc_ros.ros.io import QOS, STREAM_QOS
 
 DEFAULTS: dict[str, object] = {'output': '', 'topics_prefixes': ['/laser/', '/estimator/',
                                                                  '/controller/'],
-                               'discovery_period': 1.0, 'flush_period': 0.5}
+                               'discovery_period': 1.0, 'flush_period': 0.5,
+                               'wait_for_publishers': '', 'wait_timeout': 10.0}
 DESCRIPTIONS = {
     'output': 'bag directory to create (must not exist)',
     'topics_prefixes': 'record every topic whose name starts with one of these',
     'discovery_period': 'look for new topics this often [s]',
     'flush_period': 'write the open chunk to disk at least this often [s]',
+    'wait_for_publishers': 'comma-separated topics whose publishers must be matched before '
+                           '/laser/state is subscribed (the bringup names its nodes\' topics)',
+    'wait_timeout': 'longest wait for those publishers before subscribing anyway [s]',
 }
 READ_ONLY = frozenset(DEFAULTS)
 
@@ -61,7 +66,7 @@ class RecorderNode(Node):
         if not self.prefixes or not all(p.startswith('/') for p in self.prefixes):
             problems.append(f'topics_prefixes must be topic name prefixes starting with /, '
                             f'got {list(self.prefixes)}')
-        for name in ('discovery_period', 'flush_period'):
+        for name in ('discovery_period', 'flush_period', 'wait_timeout'):
             if not 0 < values[name] < float('inf'):
                 problems.append(f'{name} must be > 0 s, got {values[name]}')
         if problems:
@@ -76,19 +81,42 @@ class RecorderNode(Node):
         self._types: dict[str, str] = {}
         self._subscriptions_by_topic = {}
         self._in_bag: set[str] = set()
-        known = sorted((t for t in QOS if t.startswith(self.prefixes)),
-                       key=lambda t: t == itf.TOPIC_STATE)
+        known = [t for t in QOS if t.startswith(self.prefixes) and t != itf.TOPIC_STATE]
         for topic in known:
             self._subscribe(topic, FLOAT64_MULTI_ARRAY)
+        # /laser/state last, once the named publishers are matched: laser_sim waits for
+        # its readers, so nothing the others publish is lost to discovery.
+        named = [t.strip() for t in str(values['wait_for_publishers']).split(',')]
+        self._awaited = [t for t in named if t in self._subscriptions_by_topic]
+        self._gate_deadline = time.monotonic() + values['wait_timeout']
+        self._gate_timer = self.create_timer(0.05, self._open_gate)
+        self._open_gate()
         self._discover()
         self.create_timer(values['discovery_period'], self._discover)
         self.create_timer(values['flush_period'], self.writer.flush)
         self.get_logger().info(f'recording topics under {", ".join(self.prefixes)} '
                                f'to {output}')
 
+    def _open_gate(self) -> None:
+        """Subscribe /laser/state once every awaited topic has a matched publisher (or
+        the wait timed out)."""
+        if self._gate_timer is None:
+            return
+        missing = [t for t in self._awaited
+                   if self._subscriptions_by_topic[t].get_publisher_count() == 0]
+        if missing and time.monotonic() < self._gate_deadline:
+            return
+        if missing:
+            self.get_logger().warning(f'no publisher matched on {missing}; recording anyway')
+        self._gate_timer.cancel()
+        self._gate_timer = None
+        if itf.TOPIC_STATE.startswith(self.prefixes):
+            self._subscribe(itf.TOPIC_STATE, FLOAT64_MULTI_ARRAY)
+
     def _discover(self) -> None:
         for topic, types in self.get_topic_names_and_types():
-            if not topic.startswith(self.prefixes):
+            if not topic.startswith(self.prefixes) or (
+                    topic == itf.TOPIC_STATE and self._gate_timer is not None):
                 continue
             if topic in self._types:
                 if types != [self._types[topic]]:
