@@ -1,9 +1,11 @@
 """dlmpc-train: train, measure and ship the models (estimator, map, predictor).
 
-``dlmpc-train all`` runs ``vae``, ``kmap``, ``mprnn`` and ``baselines`` in order on the
-datasets of ``dlmpc-data`` and writes ``models/{vae,kmap,mprnn}.pt``, the baseline angle
-tables ``models/oracle.npz`` (+ ``.json``), ``models/metrics.json``, ``models/figures/``
-and ``models/MODEL_CARD.md``. ``--quick`` trains tiny models for tests.
+``dlmpc-train all`` runs ``vae``, ``kmap``, ``mprnn``, ``baselines`` and ``curve`` in order
+on the datasets of ``dlmpc-data`` and writes ``models/{vae,kmap,mprnn}.pt``, the baseline
+angle tables ``models/oracle.npz`` (+ ``.json``), the DL-MPC's tracking curve
+``models/track_curve.npz`` (from the baseline tables; ``curve`` alone remakes it from the
+shipped ``oracle.npz`` in a second), ``models/metrics.json``, ``models/figures/`` and
+``models/MODEL_CARD.md``. ``--quick`` trains tiny models for tests.
 ``check-estimator`` measures where the shipped estimator's surrogate gets its information
 (angles or E and M; needs true K, so it is an evaluation) and writes a report to ``--out``.
 """
@@ -23,7 +25,7 @@ from dlmpc_ros.learning.pipeline import (Paths, train_kmap_stage, train_vae_stag
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog='dlmpc-train', description=__doc__.split('\n\n')[0])
-    p.add_argument('stage', choices=('all', 'vae', 'kmap', 'mprnn', 'baselines',
+    p.add_argument('stage', choices=('all', 'vae', 'kmap', 'mprnn', 'baselines', 'curve',
                                      'check-estimator'))
     p.add_argument('--data-dir', type=Path, default=Path('data'))
     p.add_argument('--models-dir', type=Path, default=Path('models'))
@@ -63,6 +65,12 @@ def main(argv: list[str] | None = None) -> int:
             ratios = {name: round(r['oracle_ratio'], 3)
                       for name, r in metrics['closed_loop'][first].items()}
             print(f'baselines: closed-loop O/O* on {first}: {ratios}', flush=True)
+        if args.stage in ('all', 'baselines', 'curve'):
+            from dlmpc_ros.learning.track_curve import train_curve_stage
+            metrics = train_curve_stage(paths.models_dir)
+            write_metrics(paths, 'curve', metrics)
+            print(f"curve: {metrics['points']} points, mean steady O "
+                  f"{metrics['mean_objective']:.4f}", flush=True)
         if args.stage == 'check-estimator':
             from dlmpc_ros.learning.identifiability import ProbeConfig, check_estimator
             check_estimator(paths, args.out, ProbeConfig(epochs=2 if args.quick else 40),
@@ -72,8 +80,9 @@ def main(argv: list[str] | None = None) -> int:
     except (FileNotFoundError, ModelFileError, ValueError) as err:
         print(f'dlmpc-train: {err}', file=sys.stderr)
         return 2
-    from dlmpc_ros.learning.card import write_model_card
-    write_model_card(paths)
+    if args.stage != 'curve':  # the curve alone reads only models/; the card needs data/
+        from dlmpc_ros.learning.card import write_model_card
+        write_model_card(paths)
     print(json.dumps({'wall_seconds': round(time.monotonic() - started, 1)}))
     return 0
 

@@ -40,6 +40,7 @@ import torch
 from dlmpc_ros.control.acquisition import AcquisitionConfig, LockSupervisor
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.step import ControlStep
+from dlmpc_ros.control.tracking import CurveTracker, TrackingConfig
 from dlmpc_ros.learning.features import features
 from dlmpc_ros.learning.kmap import KMap
 from dlmpc_ros.learning.mprnn import MPRNN
@@ -74,6 +75,8 @@ class DLMPCConfig:
     guard_cooldown: int = 50
     acquisition: AcquisitionConfig | None = field(default_factory=AcquisitionConfig)
     """The lock acquisition scan (None: off)."""
+    tracking: TrackingConfig | None = field(default_factory=TrackingConfig)
+    """Curve tracking once locked (None: off; also off without a tracking curve)."""
 
     def __post_init__(self) -> None:
         if not 1 <= self.min_iterations <= self.start_iterations <= self.max_iterations:
@@ -94,18 +97,28 @@ class DLMPCController:
     name = 'dlmpc'
 
     def __init__(self, kmap: KMap, mprnn: MPRNN, config: DLMPCConfig | None = None,
-                 target_objective: float | None = None) -> None:
+                 target_objective: float | None = None,
+                 curve: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         """``target_objective`` is the mean O of the map's training targets (the map
         file's ``subset_mean_O``); the lock threshold of the acquisition scan is
         ``config.acquisition.lock_fraction`` times it. Without it (or with
-        ``config.acquisition`` None) there is no acquisition scan."""
+        ``config.acquisition`` None) there is no acquisition scan. ``curve`` is the
+        tracking curve ``(grid (n,), angles (n, 4))`` (the ``track_curve.npz`` model
+        file); without it, or without ``target_objective``, there is no curve tracking."""
         self.config = config or DLMPCConfig()
         self.target_objective = target_objective
+        self.curve = curve
         self.acquisition = None
+        self.tracker = None
         if target_objective is not None and self.config.acquisition is not None:
             self.acquisition = LockSupervisor(
                 self.config.acquisition.lock_fraction * target_objective, self.map_angles,
                 self.config.acquisition)
+        if target_objective is not None and curve is not None \
+                and self.config.tracking is not None:
+            lock_fraction = (self.config.acquisition or AcquisitionConfig()).lock_fraction
+            self.tracker = CurveTracker(*curve, lock_fraction * target_objective,
+                                        self.config.tracking)
         self.kmap = kmap
         self.model = mprnn
         self.model.kmap = kmap
@@ -125,7 +138,8 @@ class DLMPCController:
 
     def fresh(self) -> DLMPCController:
         """A controller with the same models and settings and no history."""
-        return DLMPCController(self.kmap, self.model, self.config, self.target_objective)
+        return DLMPCController(self.kmap, self.model, self.config, self.target_objective,
+                               self.curve)
 
     def map_angles(self, surrogate: float) -> np.ndarray:
         """The map's angles (4,) [rad] for a surrogate value."""
@@ -163,8 +177,16 @@ class DLMPCController:
             scan = self.acquisition.step(objective, current, surrogate)
             if scan is not None:
                 self._plan, self._predicted_next, self._queued = None, None, []
+                if self.tracker is not None:
+                    self.tracker.interrupt()
                 return self._finish(current, scan, 'acquire', surrogate, error, np.array([]),
                                     0, started, None)
+        if self.tracker is not None:
+            on_curve = self.tracker.step(objective)
+            if on_curve is not None:
+                self._plan, self._predicted_next, self._queued = None, None, []
+                return self._finish(current, on_curve, 'track', self.tracker.estimate, error,
+                                    np.array([]), 0, started, None)
         blocked = self._guard(objective)
         if self._queued and recent <= self.config.error_threshold and not blocked:
             wanted = self._queued.pop(0)

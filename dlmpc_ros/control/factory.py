@@ -29,13 +29,23 @@ def load_estimator(models_dir: Path) -> SurrogateEstimator:
 
 
 def load_dlmpc(models_dir: Path, config: DLMPCConfig | None = None) -> DLMPCController:
-    """The DL-MPC controller from ``models_dir/{kmap,mprnn}.pt`` (no file holds true K)."""
+    """The DL-MPC controller from ``models_dir/{kmap,mprnn}.pt`` and, unless tracking is
+    off, ``models_dir/track_curve.npz`` (no file holds the true K of a run)."""
+    from dlmpc_ros.learning.checkpoint import ModelFileError
     from dlmpc_ros.learning.mprnn import load_mprnn
     from dlmpc_ros.learning.pipeline import load_kmap
+    from dlmpc_ros.learning.track_curve import FILE_NAME, load_curve
+    config = config or DLMPCConfig()
     kmap, payload = load_kmap(Path(models_dir) / 'kmap.pt')
     target = payload['metrics'].get('subset_mean_O')
+    curve = None
+    if config.tracking is not None:
+        try:
+            curve = load_curve(Path(models_dir) / FILE_NAME)
+        except (FileNotFoundError, ValueError) as err:
+            raise ModelFileError(f'{err} (or turn curve tracking off)') from None
     return DLMPCController(kmap, load_mprnn(Path(models_dir) / 'mprnn.pt', kmap), config,
-                           target_objective=float(target) if target else None)
+                           target_objective=float(target) if target else None, curve=curve)
 
 
 def oracle_table(baselines: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

@@ -8,8 +8,9 @@ from typing import Protocol
 import numpy as np
 
 #: Modes a controller reports: the DL-MPC loops, holding (no usable input), baselines,
-#: and the DL-MPC's lock acquisition scan.
-MODES = ('inner', 'outer', 'hold', 'passive', 'fixed_best', 'esc', 'oracle', 'acquire')
+#: the DL-MPC's lock acquisition scan, and its curve tracking.
+MODES = ('inner', 'outer', 'hold', 'passive', 'fixed_best', 'esc', 'oracle', 'acquire',
+         'track')
 
 
 @dataclass(frozen=True)

@@ -74,6 +74,12 @@ def write_model_card(paths: Paths) -> Path:
               'and how much of K one measurement holds (supervised probes, for comparison): '
               '`dlmpc-train check-estimator --out DIR`; for the shipped models it is recorded '
               'in `docs/results/estimator-check/`.']
+    if 'curve' in metrics:
+        c = metrics['curve']
+        lines += ['', f"The DL-MPC's tracking curve `track_curve.npz` ({c['points']} points, mean "
+                  f"steady O {c['mean_objective']:.4f}) is the refined tracking path of "
+                  '`oracle.npz` as a curve of angles over an estimate axis; `dlmpc-train '
+                  'curve` remakes it from the shipped `oracle.npz`.']
     lines += ['', '## Full metrics', '', '```json', json.dumps(
         {k: {kk: vv for kk, vv in v.items() if not kk.startswith('per_k')}
          for k, v in metrics.items()}, indent=1, default=float)[:20000], '```', '']

@@ -1,0 +1,172 @@
+"""Curve tracking for the DL-MPC: hold the laser on the best branch and follow K along it.
+
+The estimator's surrogate reads the angles, not the laser (``dlmpc-train
+check-estimator``), so the surrogate -> map loop cannot follow K by itself. Along the
+best branch-continuous angle curve ``c(s)`` (the refined tracking path; ``s`` is a
+birefringence estimate on the curve's own axis, in K's units) the steady objective peaks
+near ``s = K`` and is flat close to it. The tracker therefore estimates ``s`` from the
+measured O alone: it dithers ``s`` by ``+-dither`` in blocks of ``block`` control
+periods, compares the O measured at the end of each block with the two blocks around it
+(which cancels a linear drift of O), and steps its estimate toward the higher O. It never
+reads the true K.
+
+It takes over from the inner loop once the laser has been locked for ``entry_patience``
+periods (moving onto the curve at ``start``), and hands back when O under tracking falls
+below ``guard`` x the O measured just before it took over (then waits ``cooldown``
+periods, twice as long after each failed entry, before trying again).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    """Settings of the curve tracker (times in control periods; ``s`` in K's units)."""
+
+    start: float = -0.1
+    """Curve parameter at which tracking starts (a point that locks from most pulses)."""
+    dither: float = 0.03
+    """Half-amplitude of the dither on ``s``."""
+    block: int = 3
+    """Control periods per dither half (the O of the block's last period is used)."""
+    step: float = 0.015
+    """Change of the estimate after each compared block."""
+    deadband: float = 5e-5
+    """Relative O difference below which the estimate does not move."""
+    entry_patience: int = 20
+    """Locked periods under the inner loop before tracking takes over."""
+    settle: int = 20
+    """Periods after entry before the guard judges the objective."""
+    guard: float = 0.85
+    guard_periods: int = 3
+    """Consecutive periods below ``guard`` x the entry O that hand back to the inner loop."""
+    cooldown: int = 200
+
+    def __post_init__(self) -> None:
+        if not (self.dither > 0 and self.step > 0 and self.deadband >= 0):
+            raise ValueError('dither and step must be > 0 and deadband >= 0')
+        if min(self.block, self.entry_patience, self.guard_periods, self.cooldown) < 1 \
+                or self.settle < 0:
+            raise ValueError('block, entry_patience, guard_periods and cooldown must be '
+                             '>= 1 and settle >= 0')
+        if not 0 < self.guard <= 1:
+            raise ValueError(f'guard must be in (0, 1], got {self.guard}')
+
+
+class CurveTracker:
+    """Per control period: None while the inner loop is in charge, else the angles (4,)
+    [rad] on the curve.
+
+    ``grid`` (n,) increasing curve parameters and ``angles`` (n, 4) [rad] the curve's
+    angle sets, continuous along the grid; ``threshold`` is the objective at and above
+    which the laser counts as locked (E/M units).
+    """
+
+    def __init__(self, grid: np.ndarray, angles: np.ndarray, threshold: float,
+                 config: TrackingConfig | None = None) -> None:
+        grid = np.asarray(grid, float)
+        angles = np.asarray(angles, float)
+        if grid.ndim != 1 or grid.size < 2 or angles.shape != (grid.size, 4) \
+                or not np.all(np.diff(grid) > 0) or not np.all(np.isfinite(angles)):
+            raise ValueError('a tracking curve needs an increasing grid (n >= 2) and finite '
+                             f'(n, 4) angles; got {grid.shape} and {angles.shape}')
+        if not threshold > 0:
+            raise ValueError(f'lock threshold must be > 0, got {threshold}')
+        self.config = config or TrackingConfig()
+        self.grid, self.angles, self.threshold = grid, angles, float(threshold)
+        self.estimate = float(np.clip(self.config.start, grid[0], grid[-1]))
+        self.active = False
+        self._locked = 0          # consecutive locked periods while not tracking
+        self._recent: deque[float] = deque(maxlen=self.config.entry_patience)
+        self._entry_objective = 0.0
+        self._age = 0             # periods since entry
+        self._low = 0             # consecutive periods under the guard
+        self._wait = 0            # cooldown periods left
+        self._cooldown = self.config.cooldown
+        self._sign = 1.0          # sign of the dither in the current block
+        self._in_block = 0
+        self._blocks: deque[tuple[float, float]] = deque(maxlen=3)  # (sign, O)
+
+    def curve(self, s: float) -> np.ndarray:
+        """The curve's angles (4,) [rad] at parameter ``s`` (clipped to the grid)."""
+        s = float(np.clip(s, self.grid[0], self.grid[-1]))
+        return np.array([np.interp(s, self.grid, self.angles[:, j]) for j in range(4)])
+
+    def interrupt(self) -> None:
+        """Something else took over (the acquisition scan): stop and wait a cooldown."""
+        if self.active:
+            self._leave(failed=self._age <= self.config.settle + self.config.guard_periods)
+        self._locked = 0
+        self._recent.clear()
+
+    def step(self, objective: float) -> np.ndarray | None:
+        """This period's measured O -> the curve's angles for the next period, or None."""
+        locked = bool(np.isfinite(objective) and objective >= self.threshold)
+        if not self.active:
+            return self._maybe_enter(objective, locked)
+        self._age += 1
+        if self._age > self.config.settle:
+            bad = not (np.isfinite(objective)
+                       and objective >= self.config.guard * self._entry_objective)
+            self._low = self._low + 1 if bad else 0
+            if self._low >= self.config.guard_periods:
+                if self._age > self.config.settle + 2 * self.config.block:
+                    self._recentre()  # K moved off the estimate: start again on the curve
+                else:
+                    self._leave(failed=True)
+                    return None
+            if self._age == self.config.settle + 2 * self.config.block:
+                self._cooldown = self.config.cooldown  # a successful entry resets it
+        self._in_block += 1
+        if self._in_block >= self.config.block:
+            self._end_block(float(objective))
+        return self.curve(self.estimate + self._sign * self.config.dither)
+
+    def _maybe_enter(self, objective: float, locked: bool) -> np.ndarray | None:
+        if self._wait > 0:
+            self._wait -= 1
+            return None
+        self._locked = self._locked + 1 if locked else 0
+        if locked:
+            self._recent.append(float(objective))
+        else:
+            self._recent.clear()
+        if self._locked < self.config.entry_patience:
+            return None
+        self.active = True
+        self._entry_objective = float(np.median(self._recent))
+        self._recentre()
+        return self.curve(self.estimate + self.config.dither)
+
+    def _recentre(self) -> None:
+        """Put the estimate back to ``start`` and the dither to its first block."""
+        self._age, self._low = 0, 0
+        self.estimate = float(np.clip(self.config.start, self.grid[0], self.grid[-1]))
+        self._sign, self._in_block = 1.0, 0
+        self._blocks.clear()
+
+    def _leave(self, failed: bool) -> None:
+        self.active = False
+        self._locked = 0
+        self._recent.clear()
+        self._wait = self._cooldown
+        if failed:
+            self._cooldown *= 2
+
+    def _end_block(self, objective: float) -> None:
+        """Close a dither half: compare it with its neighbours and move the estimate."""
+        self._blocks.append((self._sign, objective))
+        self._in_block = 0
+        self._sign = -self._sign
+        if len(self._blocks) == 3 and self._age > self.config.settle:
+            (_, before), (sign, middle), (_, after) = self._blocks
+            difference = sign * (middle - 0.5 * (before + after))   # O(+) - O(-)
+            scale = max(abs(middle), 1e-12)
+            if abs(difference) > self.config.deadband * scale:
+                self.estimate += self.config.step * float(np.sign(difference))
+                self.estimate = float(np.clip(self.estimate, self.grid[0], self.grid[-1]))

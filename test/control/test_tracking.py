@@ -1,0 +1,153 @@
+"""Curve tracking: entry, extremum seeking along the curve, the guard, and its file."""
+
+import numpy as np
+import pytest
+import torch
+
+from dlmpc_ros.control.dlmpc import DLMPCConfig, DLMPCController
+from dlmpc_ros.control.tracking import CurveTracker, TrackingConfig
+from dlmpc_ros.learning.kmap import KMap, KMapConfig
+from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
+from dlmpc_ros.learning.track_curve import curve_from_baselines, load_curve, save_curve
+
+GRID = np.linspace(-0.3, 0.3, 61)
+#: A toy curve whose first angle is twice its parameter, so a command tells its s.
+ANGLES = np.stack([2 * GRID, 0.1 + 0 * GRID, -0.2 + GRID, 0.3 + 0 * GRID], axis=1)
+
+
+def _objective(angles: np.ndarray, k: float) -> float:
+    """A toy laser on the curve: O peaks at s = k and falls off quadratically."""
+    return 0.2 - 0.3 * (angles[0] / 2 - k) ** 2
+
+
+def _drive(tracker: CurveTracker, k_of_period, periods: int, start_o: float = 0.2):
+    """Feed the tracker the toy O of its own commands; (estimates, commands or None)."""
+    o, estimates, commands = start_o, [], []
+    for t in range(periods):
+        cmd = tracker.step(o)
+        commands.append(cmd)
+        estimates.append(tracker.estimate if tracker.active else np.nan)
+        o = _objective(cmd, k_of_period(t)) if cmd is not None else start_o
+    return np.array(estimates), commands
+
+
+def test_tracker_enters_after_the_lock_patience_at_its_start_point():
+    cfg = TrackingConfig(entry_patience=5, start=-0.1)
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
+    assert all(tracker.step(0.2) is None for _ in range(4))
+    first = tracker.step(0.2)
+    assert first is not None and tracker.active
+    np.testing.assert_allclose(first, tracker.curve(-0.1 + cfg.dither))
+    # an unlocked period restarts the count
+    other = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
+    for o in (0.2, 0.2, 0.05, 0.2, 0.2, 0.2, 0.2):
+        assert other.step(o) is None
+
+
+def test_estimate_climbs_to_the_peak_and_follows_a_drifting_one():
+    cfg = TrackingConfig(entry_patience=1, settle=0, step=0.01)
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
+    est, _ = _drive(tracker, lambda t: 0.15, 400)
+    assert abs(np.nanmean(est[-60:]) - 0.15) < 0.03          # from -0.1 up to 0.15
+    drift = lambda t: 0.15 * np.sin(2 * np.pi * t / 2000)     # noqa: E731
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
+    est, _ = _drive(tracker, drift, 3000)
+    truth = np.array([drift(t) for t in range(3000)])
+    late = slice(500, None)
+    assert np.nanmax(np.abs(est[late] - truth[late])) < 0.06
+    assert np.corrcoef(est[late], truth[late])[0, 1] > 0.95
+
+
+def test_flat_objective_inside_the_deadband_leaves_the_estimate_alone():
+    cfg = TrackingConfig(entry_patience=1, settle=0, deadband=1e-3)
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
+    o = 0.2
+    for _ in range(100):
+        tracker.step(o)
+        o = 0.2 + 1e-6  # changes far below the deadband
+    assert tracker.estimate == pytest.approx(cfg.start)
+
+
+def test_guard_recentres_then_hands_back_and_waits_a_growing_cooldown():
+    cfg = TrackingConfig(entry_patience=2, settle=4, guard=0.9, guard_periods=2,
+                         block=2, cooldown=10, start=0.0)
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
+    _drive(tracker, lambda t: 0.0, 40)
+    assert tracker.active
+    tracker.estimate = 0.25                       # as if K had jumped away from it
+    for _ in range(2):
+        tracker.step(0.15)                        # 0.15 < 0.9 x 0.2, twice
+    assert tracker.active and tracker.estimate == pytest.approx(0.0)   # recentred
+    for _ in range(cfg.settle + 2):
+        last = tracker.step(0.15)                 # still poor right after the recentre
+    assert last is None and not tracker.active    # handed back
+    assert sum(tracker.step(0.2) is not None for _ in range(10)) == 0  # cooldown 10
+    # The failed entry doubled the cooldown for the next failure.
+    assert tracker._cooldown == 20
+
+
+def test_interrupt_stops_tracking():
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.1,
+                           config=TrackingConfig(entry_patience=1, cooldown=3))
+    assert tracker.step(0.2) is not None
+    tracker.interrupt()
+    assert not tracker.active
+    assert [tracker.step(0.2) is None for _ in range(4)] == [True, True, True, False]
+
+
+@pytest.mark.parametrize('bad', [dict(dither=0), dict(step=-1), dict(block=0), dict(guard=0),
+                                 dict(guard=1.5), dict(settle=-1), dict(cooldown=0)])
+def test_bad_tracking_settings_are_rejected(bad):
+    with pytest.raises(ValueError):
+        TrackingConfig(**bad)
+
+
+def test_bad_curves_are_rejected():
+    with pytest.raises(ValueError):
+        CurveTracker(GRID[::-1], ANGLES, threshold=0.1)
+    with pytest.raises(ValueError):
+        CurveTracker(GRID, ANGLES[:, :3], threshold=0.1)
+    with pytest.raises(ValueError):
+        CurveTracker(GRID, ANGLES, threshold=0.0)
+
+
+def test_dlmpc_tracks_once_locked_and_reports_its_estimate():
+    torch.manual_seed(0)
+    kmap = KMap(KMapConfig(hidden=16))
+    mprnn = MPRNN(MPRNNConfig(window=2, horizon=4, n_hidden=16, n_latent=8))
+    cfg = DLMPCConfig(tracking=TrackingConfig(entry_patience=3, settle=0))
+    ctrl = DLMPCController(kmap, mprnn, cfg, target_objective=0.2, curve=(GRID, ANGLES))
+    angles, modes = np.zeros(4), []
+    for _ in range(30):
+        o = _objective(angles, 0.1) if modes and modes[-1] == 'track' else 0.19
+        step = ctrl.step(np.r_[o * 20.0, 20.0, angles], surrogate=0.0)
+        modes.append(step.mode)
+        angles = step.angles
+    assert modes[:3] != ['track'] * 3 and modes[-1] == 'track'
+    assert step.surrogate == pytest.approx(ctrl.tracker.estimate)
+    assert ctrl.fresh().tracker is not None and not ctrl.fresh().tracker.active
+    # Without the curve, or with tracking off, there is no tracker.
+    assert DLMPCController(kmap, mprnn, cfg, target_objective=0.2).tracker is None
+    off = DLMPCConfig(tracking=None)
+    assert DLMPCController(kmap, mprnn, off, 0.2, (GRID, ANGLES)).tracker is None
+
+
+def test_curve_file_round_trip_and_errors(tmp_path):
+    baselines = {'K': GRID, 'tracking_angles': ANGLES + np.pi * (GRID > 0)[:, None],
+                 'tracking_O': 0.2 + 0 * GRID}
+    curve = curve_from_baselines(baselines)
+    assert set(curve) == {'grid', 'angles', 'objective', 'schema_version'}
+    assert np.abs(np.diff(curve['angles'], axis=0)).max() < 0.05   # unwrapped: continuous
+    path = save_curve(tmp_path / 'track_curve.npz', curve, 'test')
+    grid, angles = load_curve(path)
+    np.testing.assert_allclose(grid, GRID)
+    np.testing.assert_allclose(angles, curve['angles'])
+    with pytest.raises(FileNotFoundError, match='dlmpc-train curve'):
+        load_curve(tmp_path / 'missing.npz')
+    (tmp_path / 'bad.npz').write_bytes(b'not a zip')
+    with pytest.raises(ValueError, match='dlmpc-train curve'):
+        load_curve(tmp_path / 'bad.npz')
+    np.savez(tmp_path / 'short.npz', grid=GRID, angles=ANGLES[:, :2],
+             schema_version=np.array(1))
+    with pytest.raises(ValueError, match='malformed'):
+        load_curve(tmp_path / 'short.npz')
