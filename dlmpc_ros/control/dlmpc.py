@@ -98,12 +98,13 @@ class DLMPCController:
 
     def __init__(self, kmap: KMap, mprnn: MPRNN, config: DLMPCConfig | None = None,
                  target_objective: float | None = None,
-                 curve: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+                 curve: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
         """``target_objective`` is the mean O of the map's training targets (the map
         file's ``subset_mean_O``); the lock threshold of the acquisition scan is
         ``config.acquisition.lock_fraction`` times it. Without it (or with
         ``config.acquisition`` None) there is no acquisition scan. ``curve`` is the
-        tracking curve ``(grid (n,), angles (n, 4))`` (the ``track_curve.npz`` model
+        tracking curve ``(grid (n,), angles (n, 4), steady O (n,))`` (the
+        ``track_curve.npz`` model
         file); without it, or without ``target_objective``, there is no curve tracking."""
         self.config = config or DLMPCConfig()
         self.target_objective = target_objective
@@ -117,8 +118,9 @@ class DLMPCController:
         if target_objective is not None and curve is not None \
                 and self.config.tracking is not None:
             lock_fraction = (self.config.acquisition or AcquisitionConfig()).lock_fraction
-            self.tracker = CurveTracker(*curve, lock_fraction * target_objective,
-                                        self.config.tracking)
+            grid, angles, expected = curve
+            self.tracker = CurveTracker(grid, angles, lock_fraction * target_objective,
+                                        self.config.tracking, expected)
         self.kmap = kmap
         self.model = mprnn
         self.model.kmap = kmap

@@ -13,7 +13,10 @@ reads the true K.
 It takes over from the inner loop once the laser has been locked for ``entry_patience``
 periods (moving onto the curve at ``start``), and hands back when O under tracking falls
 below ``guard`` x the O measured just before it took over (then waits ``cooldown``
-periods, twice as long after each failed entry, before trying again).
+periods, twice as long after each failed entry, before trying again). Where the curve is
+flat the estimate can rest on a plateau away from K; when O stays below ``survey_ratio``
+x the curve's own steady O at the estimate, it surveys the whole curve once and
+continues from the best point it saw.
 """
 
 from __future__ import annotations
@@ -45,7 +48,14 @@ class TrackingConfig:
     guard: float = 0.85
     guard_periods: int = 3
     """Consecutive periods below ``guard`` x the entry O that hand back to the inner loop."""
-    cooldown: int = 200
+    cooldown: int = 50
+    survey_ratio: float = 0.93
+    """O below this fraction of the curve's own steady O at the estimate, for
+    ``survey_patience`` periods, means the estimate sits on a plateau away from K: survey."""
+    survey_patience: int = 50
+    survey_spacing: float = 0.05
+    survey_dwell: int = 3
+    survey_cooldown: int = 300
 
     def __post_init__(self) -> None:
         if not (self.dither > 0 and self.step > 0 and self.deadband >= 0):
@@ -56,6 +66,10 @@ class TrackingConfig:
                              '>= 1 and settle >= 0')
         if not 0 < self.guard <= 1:
             raise ValueError(f'guard must be in (0, 1], got {self.guard}')
+        if not (0 < self.survey_ratio <= 1 and self.survey_spacing > 0) \
+                or min(self.survey_patience, self.survey_dwell, self.survey_cooldown) < 1:
+            raise ValueError('survey_ratio must be in (0, 1], survey_spacing > 0 and the '
+                             'survey periods >= 1')
 
 
 class CurveTracker:
@@ -64,11 +78,13 @@ class CurveTracker:
 
     ``grid`` (n,) increasing curve parameters and ``angles`` (n, 4) [rad] the curve's
     angle sets, continuous along the grid; ``threshold`` is the objective at and above
-    which the laser counts as locked (E/M units).
+    which the laser counts as locked (E/M units); ``expected`` (n,), the steady O on the
+    curve at each grid point, enables the survey (None: no survey).
     """
 
     def __init__(self, grid: np.ndarray, angles: np.ndarray, threshold: float,
-                 config: TrackingConfig | None = None) -> None:
+                 config: TrackingConfig | None = None,
+                 expected: np.ndarray | None = None) -> None:
         grid = np.asarray(grid, float)
         angles = np.asarray(angles, float)
         if grid.ndim != 1 or grid.size < 2 or angles.shape != (grid.size, 4) \
@@ -91,6 +107,15 @@ class CurveTracker:
         self._sign = 1.0          # sign of the dither in the current block
         self._in_block = 0
         self._blocks: deque[tuple[float, float]] = deque(maxlen=3)  # (sign, O)
+        self.expected = None if expected is None else np.asarray(expected, float)
+        if self.expected is not None and self.expected.shape != grid.shape:
+            raise ValueError(f'expected O {self.expected.shape} does not fit the grid '
+                             f'{grid.shape}')
+        self._short = 0           # consecutive periods under survey_ratio x expected O
+        self._survey_wait = 0
+        self._survey: list[float] = []                 # points still to visit
+        self._survey_seen: list[tuple[float, float]] = []  # (point, O)
+        self._dwell = 0
 
     def curve(self, s: float) -> np.ndarray:
         """The curve's angles (4,) [rad] at parameter ``s`` (clipped to the grid)."""
@@ -99,6 +124,7 @@ class CurveTracker:
 
     def interrupt(self) -> None:
         """Something else took over (the acquisition scan): stop and wait a cooldown."""
+        self._survey = []
         if self.active:
             self._leave(failed=self._age <= self.config.settle + self.config.guard_periods)
         self._locked = 0
@@ -110,6 +136,8 @@ class CurveTracker:
         if not self.active:
             return self._maybe_enter(objective, locked)
         self._age += 1
+        if self._survey:
+            return self._survey_step(float(objective))
         if self._age > self.config.settle:
             bad = not (np.isfinite(objective)
                        and objective >= self.config.guard * self._entry_objective)
@@ -122,10 +150,44 @@ class CurveTracker:
                     return None
             if self._age == self.config.settle + 2 * self.config.block:
                 self._cooldown = self.config.cooldown  # a successful entry resets it
+            if self._should_survey(float(objective)):
+                return self._start_survey()
         self._in_block += 1
         if self._in_block >= self.config.block:
             self._end_block(float(objective))
         return self.curve(self.estimate + self._sign * self.config.dither)
+
+    def _should_survey(self, objective: float) -> bool:
+        if self._survey_wait > 0:
+            self._survey_wait -= 1
+        if self.expected is None:
+            return False
+        level = self.config.survey_ratio * float(np.interp(self.estimate, self.grid,
+                                                           self.expected))
+        self._short = self._short + 1 if not objective >= level else 0
+        return self._short >= self.config.survey_patience and self._survey_wait == 0
+
+    def _start_survey(self) -> np.ndarray:
+        """Visit the curve at ``survey_spacing`` from the end nearest the estimate."""
+        points = np.arange(self.grid[0], self.grid[-1] + 1e-9, self.config.survey_spacing)
+        if self.grid[-1] - self.estimate < self.estimate - self.grid[0]:
+            points = points[::-1]
+        self._survey, self._survey_seen = [float(p) for p in points], []
+        self._dwell, self._short = -self.config.survey_dwell, 0  # first point: twice as long
+        return self.curve(self._survey[0])
+
+    def _survey_step(self, objective: float) -> np.ndarray:
+        self._dwell += 1
+        if self._dwell >= self.config.survey_dwell:
+            self._survey_seen.append((self._survey.pop(0), objective))
+            self._dwell = 0
+            if not self._survey:  # done: continue from the best point seen
+                best = max(self._survey_seen, key=lambda seen: seen[1])[0]
+                self._recentre()
+                self.estimate = best
+                self._survey_wait = self.config.survey_cooldown
+                return self.curve(self.estimate + self.config.dither)
+        return self.curve(self._survey[0])
 
     def _maybe_enter(self, objective: float, locked: bool) -> np.ndarray | None:
         if self._wait > 0:
@@ -145,7 +207,8 @@ class CurveTracker:
 
     def _recentre(self) -> None:
         """Put the estimate back to ``start`` and the dither to its first block."""
-        self._age, self._low = 0, 0
+        self._age, self._low, self._short = 0, 0, 0
+        self._survey = []
         self.estimate = float(np.clip(self.config.start, self.grid[0], self.grid[-1]))
         self._sign, self._in_block = 1.0, 0
         self._blocks.clear()

@@ -49,8 +49,8 @@ def save_curve(path: Path, curve: dict[str, np.ndarray], source: str) -> Path:
     return path
 
 
-def load_curve(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """``(grid (n,), angles (n, 4))`` of a curve file, checked.
+def load_curve(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(grid (n,), angles (n, 4), objective (n,))`` of a curve file, checked.
 
     Raises FileNotFoundError when it is missing and ValueError when it cannot be read or
     is malformed; both say how to make it."""
@@ -62,15 +62,18 @@ def load_curve(path: Path) -> tuple[np.ndarray, np.ndarray]:
             arrays = {k: data[k] for k in data.files}
     except (OSError, ValueError, zipfile.BadZipFile) as err:
         raise ValueError(f'tracking curve {path} cannot be read ({err}); {HINT}') from None
-    grid, angles = arrays.get('grid'), arrays.get('angles')
-    if grid is None or angles is None or int(arrays.get('schema_version', -1)) != SCHEMA_VERSION:
-        raise ValueError(f'tracking curve {path} lacks grid/angles or has another schema; {HINT}')
-    grid, angles = np.asarray(grid, float), np.asarray(angles, float)
+    grid, angles, objective = (arrays.get(k) for k in ('grid', 'angles', 'objective'))
+    if grid is None or angles is None or objective is None \
+            or int(arrays.get('schema_version', -1)) != SCHEMA_VERSION:
+        raise ValueError(f'tracking curve {path} lacks grid/angles/objective or has another '
+                         f'schema; {HINT}')
+    grid, angles, objective = (np.asarray(a, float) for a in (grid, angles, objective))
     if grid.ndim != 1 or grid.size < 2 or angles.shape != (grid.size, 4) \
-            or not np.all(np.diff(grid) > 0) or not np.all(np.isfinite(angles)):
+            or objective.shape != grid.shape or not np.all(np.diff(grid) > 0) \
+            or not (np.all(np.isfinite(angles)) and np.all(np.isfinite(objective))):
         raise ValueError(f'tracking curve {path} is malformed (grid {grid.shape}, angles '
-                         f'{angles.shape}); {HINT}')
-    return grid, angles
+                         f'{angles.shape}, objective {objective.shape}); {HINT}')
+    return grid, angles, objective
 
 
 def train_curve_stage(models_dir: Path) -> dict:

@@ -1,10 +1,10 @@
 """mpc_controller: the DL-MPC controller (MP-RNN planning, VAE surrogate + map inner loop,
-a lock acquisition scan while the laser is off its pulse).
+a lock acquisition scan while the laser is off its pulse, curve tracking once locked).
 
 Subscribes ``/laser/state`` and ``/estimator/birefringence``; once per control period
 publishes ``/laser/angles_cmd`` and ``/controller/status``. It never reads the true K:
 it has no subscription to ``/laser/birefringence`` or ``/laser/sim_truth``, and none of
-the files it loads (``kmap.pt``, ``mprnn.pt``) holds K.
+the files it loads (``kmap.pt``, ``mprnn.pt``, ``track_curve.npz``) holds the K of a run.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from rclpy.experimental import EventsExecutor
 
 from dlmpc_ros.control.acquisition import AcquisitionConfig
 from dlmpc_ros.control.dlmpc import DLMPCConfig, DLMPCController
+from dlmpc_ros.control.tracking import TrackingConfig
 from dlmpc_ros.control.factory import load_dlmpc
 from dlmpc_ros.learning.checkpoint import ModelFileError
 from dlmpc_ros.paths import models_dir
@@ -35,6 +36,11 @@ _ACQ = AcquisitionConfig()
 ACQUISITION_DEFAULTS: dict[str, object] = {
     'acquire': True, 'lock_fraction': _ACQ.lock_fraction, 'acquire_patience': _ACQ.patience,
     'acquire_dwell': _ACQ.dwell_periods,
+}
+_TRK = TrackingConfig()
+TRACKING_DEFAULTS: dict[str, object] = {
+    'track': True, 'track_dither': _TRK.dither, 'track_step': _TRK.step,
+    'track_guard': _TRK.guard,
 }
 DESCRIPTIONS = {
     'min_iterations': 'fewest gradient-ascent iterations per plan',
@@ -58,6 +64,12 @@ DESCRIPTIONS = {
     'lock_fraction': 'locked when O >= this x the mean O of the map training targets',
     'acquire_patience': 'unlocked control periods before the scan starts',
     'acquire_dwell': 'control periods the scan waits at each point',
+    'track': 'once locked, move onto the tracking curve (track_curve.npz) and follow K along '
+             'it by extremum seeking on the measured O',
+    'track_dither': 'half-amplitude of the dither on the curve parameter (K units)',
+    'track_step': 'change of the curve estimate per compared dither block (K units)',
+    'track_guard': 'hand back to the inner loop when O under tracking falls below this x '
+                   'the O before it took over',
 }
 
 
@@ -66,13 +78,16 @@ class MPCControllerNode(ControllerNodeBase):
 
     def __init__(self) -> None:
         super().__init__('mpc_controller',
-                         {**DEFAULTS, **OPTIONAL_DEFAULTS, **ACQUISITION_DEFAULTS}, DESCRIPTIONS)
+                         {**DEFAULTS, **OPTIONAL_DEFAULTS, **ACQUISITION_DEFAULTS,
+                          **TRACKING_DEFAULTS}, DESCRIPTIONS)
         v = self.values
         try:
             acquisition = AcquisitionConfig(
                 lock_fraction=v['lock_fraction'], patience=v['acquire_patience'],
                 dwell_periods=v['acquire_dwell']) if v['acquire'] else None
-            config = DLMPCConfig(limits=self.limits, acquisition=acquisition,
+            tracking = TrackingConfig(dither=v['track_dither'], step=v['track_step'],
+                                      guard=v['track_guard']) if v['track'] else None
+            config = DLMPCConfig(limits=self.limits, acquisition=acquisition, tracking=tracking,
                                  **{name: v[name] for name in DEFAULTS},
                                  **{name: v[name] or None for name in OPTIONAL_DEFAULTS})
         except (ValueError, TypeError) as err:

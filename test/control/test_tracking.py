@@ -86,6 +86,33 @@ def test_guard_recentres_then_hands_back_and_waits_a_growing_cooldown():
     assert tracker._cooldown == 20
 
 
+def test_survey_leaves_a_plateau_for_the_best_point_of_the_curve():
+    """A landscape flat around the start and peaked far from it: the local dither cannot
+    see the peak, the survey finds it."""
+    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.2, survey_patience=10,
+                         survey_spacing=0.05, survey_dwell=2)
+    expected = np.full(GRID.size, 0.2)
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg, expected=expected)
+
+    def plateau(cmd):
+        s = cmd[0] / 2
+        return 0.17 if s < 0.05 else 0.2 - 0.3 * (s - 0.2) ** 2
+
+    o = 0.2
+    for _ in range(200):
+        cmd = tracker.step(o)
+        o = plateau(cmd)
+    assert tracker.active and abs(tracker.estimate - 0.2) < 0.06
+    assert o > 0.19
+    # without the curve's expected O there is no survey: it stays on the plateau
+    stuck = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
+    o = 0.2
+    for _ in range(200):
+        cmd = stuck.step(o)
+        o = plateau(cmd)
+    assert stuck.estimate < 0.0
+
+
 def test_interrupt_stops_tracking():
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1,
                            config=TrackingConfig(entry_patience=1, cooldown=3))
@@ -96,7 +123,9 @@ def test_interrupt_stops_tracking():
 
 
 @pytest.mark.parametrize('bad', [dict(dither=0), dict(step=-1), dict(block=0), dict(guard=0),
-                                 dict(guard=1.5), dict(settle=-1), dict(cooldown=0)])
+                                 dict(guard=1.5), dict(settle=-1), dict(cooldown=0),
+                                 dict(survey_ratio=0), dict(survey_spacing=0),
+                                 dict(survey_dwell=0)])
 def test_bad_tracking_settings_are_rejected(bad):
     with pytest.raises(ValueError):
         TrackingConfig(**bad)
@@ -116,7 +145,8 @@ def test_dlmpc_tracks_once_locked_and_reports_its_estimate():
     kmap = KMap(KMapConfig(hidden=16))
     mprnn = MPRNN(MPRNNConfig(window=2, horizon=4, n_hidden=16, n_latent=8))
     cfg = DLMPCConfig(tracking=TrackingConfig(entry_patience=3, settle=0))
-    ctrl = DLMPCController(kmap, mprnn, cfg, target_objective=0.2, curve=(GRID, ANGLES))
+    ctrl = DLMPCController(kmap, mprnn, cfg, target_objective=0.2,
+                           curve=(GRID, ANGLES, 0.2 + 0 * GRID))
     angles, modes = np.zeros(4), []
     for _ in range(30):
         o = _objective(angles, 0.1) if modes and modes[-1] == 'track' else 0.19
@@ -129,7 +159,7 @@ def test_dlmpc_tracks_once_locked_and_reports_its_estimate():
     # Without the curve, or with tracking off, there is no tracker.
     assert DLMPCController(kmap, mprnn, cfg, target_objective=0.2).tracker is None
     off = DLMPCConfig(tracking=None)
-    assert DLMPCController(kmap, mprnn, off, 0.2, (GRID, ANGLES)).tracker is None
+    assert DLMPCController(kmap, mprnn, off, 0.2, (GRID, ANGLES, GRID)).tracker is None
 
 
 def test_curve_file_round_trip_and_errors(tmp_path):
@@ -139,7 +169,8 @@ def test_curve_file_round_trip_and_errors(tmp_path):
     assert set(curve) == {'grid', 'angles', 'objective', 'schema_version'}
     assert np.abs(np.diff(curve['angles'], axis=0)).max() < 0.05   # unwrapped: continuous
     path = save_curve(tmp_path / 'track_curve.npz', curve, 'test')
-    grid, angles = load_curve(path)
+    grid, angles, objective = load_curve(path)
+    np.testing.assert_allclose(objective, 0.2)
     np.testing.assert_allclose(grid, GRID)
     np.testing.assert_allclose(angles, curve['angles'])
     with pytest.raises(FileNotFoundError, match='dlmpc-train curve'):
@@ -147,7 +178,7 @@ def test_curve_file_round_trip_and_errors(tmp_path):
     (tmp_path / 'bad.npz').write_bytes(b'not a zip')
     with pytest.raises(ValueError, match='dlmpc-train curve'):
         load_curve(tmp_path / 'bad.npz')
-    np.savez(tmp_path / 'short.npz', grid=GRID, angles=ANGLES[:, :2],
+    np.savez(tmp_path / 'short.npz', grid=GRID, angles=ANGLES[:, :2], objective=GRID,
              schema_version=np.array(1))
     with pytest.raises(ValueError, match='malformed'):
         load_curve(tmp_path / 'short.npz')

@@ -97,6 +97,9 @@ def test_mpc_controller_acts_each_period_holds_without_estimator_and_never_reads
         payload = load_checkpoint(ROOT / 'models' / f'{kind}.pt', kind)
         names = ' '.join([*payload['state_dict'], *payload['config']]).lower()
         assert 'birefringence' not in names and 'truth' not in names
+    with np.load(ROOT / 'models' / 'track_curve.npz', allow_pickle=False) as curve:
+        # a curve of angles over an estimate axis, with its steady O: no run's K
+        assert set(curve.files) == {'grid', 'angles', 'objective', 'schema_version'}
 
 
 def test_lockstep_laser_waits_for_each_command(ros_env, tmp_path, probe):

@@ -68,6 +68,9 @@ CASES = {
     'mpc-lock-fraction': (MPC, ['-p', 'lock_fraction:=1.5'], ['lock_fraction must be in (0, 1)']),
     'mpc-objective-guard': (MPC, ['-p', 'objective_guard:=1.5'],
                             ['objective_guard must be in (0, 1]']),
+    'mpc-track-guard': (MPC, ['-p', 'track_guard:=0.0'], ['guard must be in (0, 1]']),
+    'mpc-no-curve': (MPC, ['-p', 'models_dir:={models}'], ['track_curve.npz is missing',
+                                                           'dlmpc-train curve']),
     'mpc-no-models': (MPC, ['-p', 'models_dir:=/nonexistent'], ['is missing', 'dlmpc-train']),
     'mpc-corrupt': (MPC, ['-p', 'models_dir:={models}'], ['kmap.pt is corrupt',
                                                           'dlmpc-train kmap']),
@@ -102,6 +105,8 @@ def _damaged_models(case: str, tmp: Path) -> Path:
         shutil.copy(models / 'kmap.pt', models / 'vae.pt')
     elif case == 'mpc-corrupt':
         (models / 'kmap.pt').write_bytes(b'\x00garbage' * 512)
+    elif case == 'mpc-no-curve':
+        (models / 'track_curve.npz').unlink()
     elif case == 'baseline-corrupt':
         (models / 'oracle.npz').write_bytes(os.urandom(2048))
     elif case == 'mpc-truncated':
