@@ -10,7 +10,9 @@ Usage::
         --out bench/results/outer_loop.json --jobs 2
 
 ``variants.json`` maps names to overrides, e.g. ``{"shipped": {}, "monitored":
-{"monitor_prediction": true}}``. Writes the runs' metrics (plus the fraction of periods in
+{"monitor_prediction": true}, "no tracking": {"tracking": null}, "slow tracking":
+{"tracking": {"max_step": 0.015}}}`` (``tracking`` takes the fields of
+:class:`~dlmpc_ros.control.tracking.TrackingConfig`). Writes the runs' metrics (plus the fraction of periods in
 each mode) as JSON and a markdown table of mean O / O* (mean over seeds, min-max) beside it.
 """
 
@@ -56,19 +58,21 @@ def run_one(job: tuple[str, dict, str, int, int, str]) -> dict:
 
 
 def table(runs: list[dict]) -> str:
-    """Markdown: variant x scenario, mean O / O* over seeds (min-max), outer fraction."""
-    lines = ['| variant | ' + ' | '.join(SCENARIOS) + ' | outer loop share |',
-             '|---' * (len(SCENARIOS) + 2) + '|']
+    """Markdown: variant x scenario, mean O / O* over seeds (min-max), and the share of
+    periods in the outer loop and in curve tracking."""
+    lines = ['| variant | ' + ' | '.join(SCENARIOS) + ' | outer loop share | track share |',
+             '|---' * (len(SCENARIOS) + 3) + '|']
     for variant in dict.fromkeys(r['variant'] for r in runs):
-        cells, outer = [], []
+        cells, share = [], {'outer': [], 'track': []}
         for scenario in SCENARIOS:
             mine = [r for r in runs if r['variant'] == variant and r['scenario'] == scenario]
             ratios = [r['oracle_ratio'] for r in mine]
-            outer += [r['mode_fractions'].get('outer', 0.0) for r in mine]
+            for mode, values in share.items():
+                values += [r['mode_fractions'].get(mode, 0.0) for r in mine]
             cells.append(f'{np.mean(ratios):.3f} ({min(ratios):.3f}-{max(ratios):.3f})'
                          if ratios else '')
-        lines.append(f'| {variant} | ' + ' | '.join(cells) +
-                     f' | {min(outer):.2f}-{max(outer):.2f} |')
+        lines.append(f'| {variant} | ' + ' | '.join(cells) + ' | ' + ' | '.join(
+            f'{min(v):.2f}-{max(v):.2f}' for v in share.values()) + ' |')
     return '\n'.join(lines) + '\n'
 
 

@@ -39,7 +39,8 @@ LASER_STATUS_FIELDS = ('round_trip', 'rate', 'commands_received', 'birefringence
 ESTIMATE_FIELDS = ('round_trip', 'surrogate', 'latency_ms')
 #: /controller/status, one per control period: mode is an index into
 #: dlmpc_ros.control.step.MODES; prediction_error is -1 until a prediction was checked;
-#: surrogate is the one used (0 with surrogate_valid = 0 when there was none);
+#: surrogate is the one used (in mode 'track' the curve tracker's K estimate, in K's
+#: units; 0 with surrogate_valid = 0 when there was none);
 #: estimator_age is the number of periods since the last estimate (-1: none yet);
 #: latency [ms] is the controller's own step; then the predicted O over the horizon
 #: (outer loop only). Every value is finite.

@@ -45,7 +45,7 @@ PRESETS: dict[str, dict[str, object]] = {
 }
 TABLE_KEYS = ('oracle_ratio', 'oracle_controller_ratio', 'locked_fraction',
               'acquisition_round_trips', 'recovery_round_trips_max', 'step_latency_ms_median',
-              'step_latency_ms_p99')
+              'step_latency_ms_p99', 'track_estimate_abs_r')
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -139,8 +139,11 @@ def run_one(args: argparse.Namespace, scenario_name: str, controller_name: str, 
     estimator = None
     if controller_name == 'dlmpc':
         from dlmpc_ros.control.dlmpc import DLMPCConfig
-        controller = load_dlmpc(args.models_dir,
-                                DLMPCConfig(limits=limits, **(dlmpc_overrides or {})))
+        from dlmpc_ros.control.tracking import TrackingConfig
+        overrides = dict(dlmpc_overrides or {})
+        if isinstance(overrides.get('tracking'), dict):  # from JSON: the tracker's fields
+            overrides['tracking'] = TrackingConfig(**overrides['tracking'])
+        controller = load_dlmpc(args.models_dir, DLMPCConfig(limits=limits, **overrides))
         estimator = load_estimator(args.models_dir)
     else:
         controller = make_baseline(controller_name, args.models_dir, limits,
@@ -179,7 +182,8 @@ def _summary_line(metrics: dict) -> str:
 def _measure(record: RunRecord, envelope: dict, run_dir: Path, **extra) -> dict:
     """The run's metrics (plus ``extra``), saved with its record in ``run_dir``."""
     metrics = {**run_metrics(record, envelope), **extra,
-               'surrogate_abs_r': surrogate_correlation(record)}
+               'surrogate_abs_r': surrogate_correlation(record),
+               'track_estimate_abs_r': surrogate_correlation(record, tracking=True)}
     record.save(run_dir / 'record.npz')
     (run_dir / 'metrics.json').write_text(json.dumps({**record.meta, **metrics}, indent=2))
     return metrics
@@ -306,7 +310,7 @@ def main(argv: list[str] | None = None) -> int:
         plot_tracking(group, envelope, shown, f'{scenario_name}, seed {seed}',
                       args.out / 'figures' / f'{scenario_name}-s{seed}-tracking.png')
         if 'dlmpc' in group:
-            plot_surrogate(group['dlmpc'], f'{scenario_name}, seed {seed}: VAE surrogate',
+            plot_surrogate(group['dlmpc'], f'{scenario_name}, seed {seed}',
                            args.out / 'figures' / f'{scenario_name}-s{seed}-surrogate.png')
     print(f'dlmpc-evaluate: wrote {args.out}/metrics.json, table.md and figures/')
     return 0

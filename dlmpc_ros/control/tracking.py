@@ -38,10 +38,16 @@ class TrackingConfig:
     block: int = 3
     """Control periods per dither half (the O of the block's last period is used)."""
     step: float = 0.015
-    """Change of the estimate after each compared block."""
+    """First change of the estimate after a compared block; it grows by ``grow`` while the
+    comparisons agree in sign and shrinks by ``shrink`` when they flip (Rprop), within
+    [``min_step``, ``max_step``]."""
+    min_step: float = 0.005
+    max_step: float = 0.03
+    grow: float = 1.5
+    shrink: float = 0.5
     deadband: float = 5e-5
     """Relative O difference below which the estimate does not move."""
-    entry_patience: int = 20
+    entry_patience: int = 3
     """Locked periods under the inner loop before tracking takes over."""
     settle: int = 20
     """Periods after entry before the guard judges the objective."""
@@ -52,14 +58,18 @@ class TrackingConfig:
     survey_ratio: float = 0.93
     """O below this fraction of the curve's own steady O at the estimate, for
     ``survey_patience`` periods, means the estimate sits on a plateau away from K: survey."""
-    survey_patience: int = 50
+    survey_patience: int = 20
     survey_spacing: float = 0.05
     survey_dwell: int = 3
     survey_cooldown: int = 300
 
     def __post_init__(self) -> None:
-        if not (self.dither > 0 and self.step > 0 and self.deadband >= 0):
-            raise ValueError('dither and step must be > 0 and deadband >= 0')
+        if not (self.dither > 0 and 0 < self.min_step <= self.step <= self.max_step
+                and self.deadband >= 0):
+            raise ValueError('need dither > 0, 0 < min_step <= step <= max_step and '
+                             'deadband >= 0')
+        if not (self.grow >= 1 and 0 < self.shrink <= 1):
+            raise ValueError('need grow >= 1 and 0 < shrink <= 1')
         if min(self.block, self.entry_patience, self.guard_periods, self.cooldown) < 1 \
                 or self.settle < 0:
             raise ValueError('block, entry_patience, guard_periods and cooldown must be '
@@ -107,6 +117,7 @@ class CurveTracker:
         self._sign = 1.0          # sign of the dither in the current block
         self._in_block = 0
         self._blocks: deque[tuple[float, float]] = deque(maxlen=3)  # (sign, O)
+        self._step, self._last_move = self.config.step, 0.0        # Rprop step and sign
         self.expected = None if expected is None else np.asarray(expected, float)
         if self.expected is not None and self.expected.shape != grid.shape:
             raise ValueError(f'expected O {self.expected.shape} does not fit the grid '
@@ -212,8 +223,10 @@ class CurveTracker:
         self.estimate = float(np.clip(self.config.start, self.grid[0], self.grid[-1]))
         self._sign, self._in_block = 1.0, 0
         self._blocks.clear()
+        self._step, self._last_move = self.config.step, 0.0
 
     def _leave(self, failed: bool) -> None:
+        """Hand back and wait a cooldown (doubled for the next one after a failed entry)."""
         self.active = False
         self._locked = 0
         self._recent.clear()
@@ -231,5 +244,12 @@ class CurveTracker:
             difference = sign * (middle - 0.5 * (before + after))   # O(+) - O(-)
             scale = max(abs(middle), 1e-12)
             if abs(difference) > self.config.deadband * scale:
-                self.estimate += self.config.step * float(np.sign(difference))
+                move = float(np.sign(difference))
+                cfg = self.config
+                if self._last_move:
+                    factor = cfg.grow if move == self._last_move else cfg.shrink
+                    self._step = float(np.clip(self._step * factor, cfg.min_step,
+                                               cfg.max_step))
+                self._last_move = move
+                self.estimate += self._step * move
                 self.estimate = float(np.clip(self.estimate, self.grid[0], self.grid[-1]))

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dlmpc_ros.control.step import MODES
 from dlmpc_ros.evaluation.record import RunRecord
 from dlmpc_ros.learning.oracle import envelope_objective
 
@@ -58,9 +59,16 @@ def plot_tracking(records: dict[str, RunRecord], envelope: dict[str, np.ndarray]
     return path
 
 
-def surrogate_correlation(record: RunRecord) -> float | None:
-    """|Pearson r| between the surrogate and the true K at the control periods."""
-    ok = np.isfinite(record.surrogate)
+def _tracking(record: RunRecord) -> np.ndarray:
+    """(periods,) True where the DL-MPC tracked the curve: its status surrogate there is
+    the curve estimate (K's units), not the VAE surrogate."""
+    return record.mode == MODES.index('track')
+
+
+def surrogate_correlation(record: RunRecord, tracking: bool = False) -> float | None:
+    """|Pearson r| between the true K and, at the control periods, the VAE surrogate
+    (``tracking`` False) or the curve tracker's estimate (True)."""
+    ok = np.isfinite(record.surrogate) & (_tracking(record) == tracking)
     if ok.sum() < 3:
         return None
     index = np.searchsorted(record.round_trip, record.control_round_trip[ok])
@@ -78,15 +86,23 @@ def plot_surrogate(record: RunRecord, title: str, path: Path) -> Path:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(10, 3.5), constrained_layout=True)
-    ax.plot(record.control_round_trip, record.surrogate, lw=0.7, color='tab:blue',
-            label='VAE surrogate')
-    ax.set_ylabel('surrogate', color='tab:blue')
+    track = _tracking(record)
+    ax.plot(record.control_round_trip, np.where(track, np.nan, record.surrogate), lw=0.7,
+            color='tab:blue', label='VAE surrogate')
+    ax.set_ylabel('VAE surrogate', color='tab:blue')
     ax.set_xlabel('round trip')
     twin = ax.twinx()
     twin.plot(record.round_trip, record.K, color='tab:red', lw=1.0, label='true K')
-    twin.set_ylabel('K (true)', color='tab:red')
-    r = surrogate_correlation(record)
-    ax.set_title(f'{title}: |r| = {r:.3f}' if r is not None else title)
+    if track.any():
+        twin.plot(record.control_round_trip[track], record.surrogate[track], '.', ms=1.5,
+                  color='black', label='curve estimate (track)')
+        twin.legend(loc='upper right', fontsize=8)
+    twin.set_ylabel('K (true) and curve estimate', color='tab:red')
+    r, r_track = surrogate_correlation(record), surrogate_correlation(record, tracking=True)
+    parts = [f'VAE |r| = {r:.3f}' if r is not None else '',
+             f'curve estimate |r| = {r_track:.3f}' if r_track is not None else '']
+    parts = [p for p in parts if p]
+    ax.set_title(f'{title}: {", ".join(parts)}' if parts else title)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     plt.close(fig)
