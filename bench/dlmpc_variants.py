@@ -12,8 +12,9 @@ Usage::
 ``variants.json`` maps names to overrides, e.g. ``{"shipped": {}, "monitored":
 {"monitor_prediction": true}, "no tracking": {"tracking": null}, "slow tracking":
 {"tracking": {"max_step": 0.015}}}`` (``tracking`` takes the fields of
-:class:`~dlmpc_ros.control.tracking.TrackingConfig`). Writes the runs' metrics (plus the fraction of periods in
-each mode) as JSON and a markdown table of mean O / O* (mean over seeds, min-max) beside it.
+:class:`~dlmpc_ros.control.tracking.TrackingConfig`). Writes the runs' metrics (plus the
+fraction of periods in each mode) as JSON and a markdown table of mean O / O* (mean over
+seeds, min-max) beside it.
 """
 
 from __future__ import annotations
