@@ -64,7 +64,7 @@ def test_mpc_controller_acts_each_period_holds_without_estimator_and_never_reads
     commands = probe.listen(itf.TOPIC_ANGLES_CMD)
     status = probe.listen(itf.TOPIC_CONTROLLER_STATUS)
     node = _start(MPC, ros_env, tmp_path, 'period:=10', 'estimator_timeout:=0.2',
-                  'max_step:=0.1')
+                  'max_step:=0.1', 'track:=false')  # the inner loop and hold; tracking below
     try:
         probe.wait_matched(itf.TOPIC_STATE)
         probe.wait_matched(itf.TOPIC_ESTIMATE)
@@ -100,6 +100,42 @@ def test_mpc_controller_acts_each_period_holds_without_estimator_and_never_reads
     with np.load(ROOT / 'models' / 'track_curve.npz', allow_pickle=False) as curve:
         # a curve of angles over an estimate axis, with its steady O: no run's K
         assert set(curve.files) == {'grid', 'angles', 'objective', 'schema_version'}
+
+
+def test_mpc_controller_tracks_the_curve_once_locked_even_without_estimates(
+        ros_env, tmp_path, probe):
+    from dlmpc_ros.control.tracking import TrackingConfig
+    from dlmpc_ros.learning.track_curve import load_curve
+    status = probe.listen(itf.TOPIC_CONTROLLER_STATUS)
+    commands = probe.listen(itf.TOPIC_ANGLES_CMD)
+    node = _start(MPC, ros_env, tmp_path, 'period:=10', 'estimator_timeout:=0.2',
+                  'max_step:=3.0')
+    try:
+        probe.wait_matched(itf.TOPIC_STATE)
+        probe.wait_matched(itf.TOPIC_ESTIMATE)
+        # A locked laser (O = 3.2 / 18 is above the lock level): inner loop, then tracking.
+        patience = TrackingConfig().entry_patience
+        for r in range(10, 10 * patience + 1, 10):
+            probe.publish(itf.TOPIC_STATE, _state(r), itf.STATE_FIELDS)
+            probe.publish(itf.TOPIC_ESTIMATE, [r, 0.2, 0.5, 0.2, 0.1])
+            probe.spin_until(lambda n=r // 10: len(status) >= n, 30, f'decision {r // 10}')
+        # The estimator falls silent: tracking needs no estimate and goes on.
+        for r in range(10 * patience + 10, 10 * patience + 31, 10):
+            probe.publish(itf.TOPIC_STATE, _state(r), itf.STATE_FIELDS)
+            probe.spin_until(lambda n=r // 10: len(status) >= n, 30, f'decision {r // 10}')
+    finally:
+        assert node.stop() == 0
+    rows = [list(m.data) for m in status]
+    modes = [MODES[int(row[1])] for row in rows]
+    assert modes[:patience - 1] == ['inner'] * (patience - 1)
+    assert modes[patience - 1:] == ['track'] * (len(rows) - patience + 1)
+    grid, angles, _ = load_curve(ROOT / 'models' / 'track_curve.npz')
+    for row, cmd in zip(rows[patience - 1:], commands[patience - 1:]):
+        assert row[6] == 1.0 and grid[0] <= row[5] <= grid[-1]  # the curve estimate, K units
+        gap = (np.array(cmd.data) - np.array([np.interp(row[5], grid, a) for a in angles.T])
+               + np.pi / 2) % np.pi - np.pi / 2
+        assert np.abs(gap).max() < 0.2  # on the curve, within the dither
+    assert rows[-1][7] > 0  # the estimator is silent and the status says so
 
 
 def test_lockstep_laser_waits_for_each_command(ros_env, tmp_path, probe):
