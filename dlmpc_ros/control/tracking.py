@@ -226,13 +226,13 @@ class CurveTracker:
         self._step, self._last_move = self.config.step, 0.0
 
     def _leave(self, failed: bool) -> None:
-        """Hand back and wait a cooldown (doubled for the next one after a failed entry)."""
+        """Hand back and wait a cooldown (doubled, up to 64 x, after a failed entry)."""
         self.active = False
         self._locked = 0
         self._recent.clear()
         self._wait = self._cooldown
         if failed:
-            self._cooldown *= 2
+            self._cooldown = min(2 * self._cooldown, 64 * self.config.cooldown)
 
     def _end_block(self, objective: float) -> None:
         """Close a dither half: compare it with its neighbours and move the estimate."""
