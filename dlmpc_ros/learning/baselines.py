@@ -438,6 +438,22 @@ def save_baselines(path: Path, arrays: dict[str, np.ndarray], meta: dict) -> Pat
     return path
 
 
+def read_npz(path: Path, what: str, hint: str) -> dict[str, np.ndarray]:
+    """Every array of a plain .npz file (no pickles are loaded).
+
+    Raises FileNotFoundError when it is missing and ValueError when it cannot be read; both
+    name ``what`` the file is and end with ``hint`` (how to make it)."""
+    path = Path(path)
+    if not path.is_file():
+        verb = 'are' if what.endswith('s') else 'is'
+        raise FileNotFoundError(f'{what} {path} {verb} missing; {hint}')
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return {k: data[k] for k in data.files}
+    except (OSError, ValueError, zipfile.BadZipFile) as err:
+        raise ValueError(f'{what} {path} cannot be read ({err}); {hint}') from None
+
+
 def load_baselines(path: Path) -> dict[str, np.ndarray]:
     """The baseline tables of ``path`` (models/oracle.npz) as a dict of arrays.
 
@@ -446,13 +462,7 @@ def load_baselines(path: Path) -> dict[str, np.ndarray]:
     """
     path = Path(path)
     hint = 'run `dlmpc-train baselines` to make it'
-    if not path.is_file():
-        raise FileNotFoundError(f'baseline tables {path} are missing; {hint}')
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile) as err:
-        raise ValueError(f'baseline tables {path} cannot be read ({err}); {hint}') from None
+    arrays = read_npz(path, 'baseline tables', hint)
     missing = [k for k in REQUIRED_KEYS if k not in arrays]
     if missing:
         raise ValueError(f'baseline tables {path} lack {missing} (an older or foreign file); '

@@ -13,12 +13,11 @@ angles, like the K-to-angles map.
 from __future__ import annotations
 
 import json
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from dlmpc_ros.learning.baselines import unwrap_table
+from dlmpc_ros.learning.baselines import read_npz, unwrap_table
 
 SCHEMA_VERSION = 1
 FILE_NAME = 'track_curve.npz'
@@ -55,13 +54,7 @@ def load_curve(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     Raises FileNotFoundError when it is missing and ValueError when it cannot be read or
     is malformed; both say how to make it."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f'tracking curve {path} is missing; {HINT}')
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile) as err:
-        raise ValueError(f'tracking curve {path} cannot be read ({err}); {HINT}') from None
+    arrays = read_npz(path, 'tracking curve', HINT)
     grid, angles, objective = (arrays.get(k) for k in ('grid', 'angles', 'objective'))
     if grid is None or angles is None or objective is None \
             or int(arrays.get('schema_version', -1)) != SCHEMA_VERSION:
