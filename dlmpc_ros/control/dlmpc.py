@@ -24,8 +24,12 @@ measured O under the outer loop falls.
 
 While the measured O says the laser is off its pulse, a lock supervisor
 (:mod:`~dlmpc_ros.control.acquisition`) scans the map's curve until it locks (mode
-``acquire``). Angle limits and a maximum step per period (servo speed) are enforced on
-every command.
+``acquire``). Once it is locked, the curve tracker (:mod:`~dlmpc_ros.control.tracking`,
+mode ``track``, on by default) moves it onto the best branch-continuous angle curve and
+follows K along it by extremum seeking on the measured O; the loops above run only while
+it is not tracking (measured in ``bench/results/tracking.md``: the outer loop's plans
+lose objective, the tracker gains it). Angle limits and a maximum step per period
+(servo speed) are enforced on every command.
 """
 
 from __future__ import annotations
@@ -103,9 +107,9 @@ class DLMPCController:
         file's ``subset_mean_O``); the lock threshold of the acquisition scan is
         ``config.acquisition.lock_fraction`` times it. Without it (or with
         ``config.acquisition`` None) there is no acquisition scan. ``curve`` is the
-        tracking curve ``(grid (n,), angles (n, 4), steady O (n,))`` (the
-        ``track_curve.npz`` model
-        file); without it, or without ``target_objective``, there is no curve tracking."""
+        tracking curve ``(grid (n,), angles (n, 4), steady O (n,))`` of the
+        ``track_curve.npz`` model file; without it, without ``target_objective`` or with
+        ``config.tracking`` None, there is no curve tracking."""
         self.config = config or DLMPCConfig()
         self.target_objective = target_objective
         self.curve = curve

@@ -15,8 +15,8 @@ from rclpy.experimental import EventsExecutor
 
 from dlmpc_ros.control.acquisition import AcquisitionConfig
 from dlmpc_ros.control.dlmpc import DLMPCConfig, DLMPCController
-from dlmpc_ros.control.tracking import TrackingConfig
 from dlmpc_ros.control.factory import load_dlmpc
+from dlmpc_ros.control.tracking import TrackingConfig
 from dlmpc_ros.learning.checkpoint import ModelFileError
 from dlmpc_ros.paths import models_dir
 from dlmpc_ros.ros import params
@@ -67,7 +67,8 @@ DESCRIPTIONS = {
     'track': 'once locked, move onto the tracking curve (track_curve.npz) and follow K along '
              'it by extremum seeking on the measured O',
     'track_dither': 'half-amplitude of the dither on the curve parameter (K units)',
-    'track_step': 'change of the curve estimate per compared dither block (K units)',
+    'track_step': 'first change of the curve estimate per compared dither block (K units; '
+                  'it adapts between 0.005 and 0.03)',
     'track_guard': 'hand back to the inner loop when O under tracking falls below this x '
                    'the O before it took over',
 }
