@@ -11,8 +11,9 @@ Usage::
 
 ``variants.json`` maps names to overrides, e.g. ``{"shipped": {}, "monitored":
 {"monitor_prediction": true}, "no tracking": {"tracking": null}, "slow tracking":
-{"tracking": {"max_step": 0.015}}}`` (``tracking`` takes the fields of
-:class:`~dlmpc_ros.control.tracking.TrackingConfig`). Writes the runs' metrics (plus the
+{"tracking": {"max_step": 0.015}}, "noisy": {"measurement_noise": 0.01}}`` (``tracking``
+takes the fields of :class:`~dlmpc_ros.control.tracking.TrackingConfig`;
+``measurement_noise`` is the run's relative noise on the measured E and M). Writes the runs' metrics (plus the
 fraction of periods in each mode) as JSON and a markdown table of mean O / O* (mean over
 seeds, min-max) beside it.
 """
@@ -42,10 +43,12 @@ def run_one(job: tuple[str, dict, str, int, int, str]) -> dict:
     from dlmpc_ros.learning.baselines import load_baselines
 
     name, overrides, scenario, seed, round_trips, models = job
+    overrides = dict(overrides)
+    noise = float(overrides.pop('measurement_noise', 0.0))  # a run setting, not DLMPCConfig
     with tempfile.TemporaryDirectory() as scratch:
         args = parse_args(['--fast', '--scenario', scenario, '--seed', str(seed),
                            '--round-trips', str(round_trips), '--models-dir', models,
-                           '--out', scratch])
+                           '--measurement-noise', str(noise), '--out', scratch])
         started = time.monotonic()
         record = evaluate_run(args, scenario, 'dlmpc', seed, Path(scratch), overrides)
     metrics = run_metrics(record, load_baselines(Path(models) / 'oracle.npz'))

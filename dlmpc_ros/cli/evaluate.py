@@ -63,6 +63,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument('--period', type=int, default=10, help='control period P [round trips]')
     p.add_argument('--max-step', type=float, default=0.25,
                    help='servo speed: largest angle change per period [rad]')
+    p.add_argument('--measurement-noise', type=float, default=0.0, metavar='SIGMA',
+                   help='fast mode: relative Gaussian noise on the E and M the estimator '
+                        'and controller see (the record keeps the true values)')
     p.add_argument('--fast', action='store_true',
                    help='run the core objects in one process instead of the node graph')
     p.add_argument('--free-run', action='store_true',
@@ -74,6 +77,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument('--out', type=Path, required=True, help='output directory')
     args = p.parse_args(argv)
     args.models_dir = args.models_dir or default_models_dir()
+    if args.measurement_noise and not args.fast:
+        p.error('--measurement-noise applies to --fast runs (a graph run measures the '
+                'laser node as it is)')
+    if not 0 <= args.measurement_noise < 1:
+        p.error('--measurement-noise must be in [0, 1)')
     if args.bag and (args.scenario or args.controller or args.seed or args.fast):
         p.error('--bag evaluates recorded runs; it takes no --scenario, --controller, '
                 '--seed or --fast')
@@ -125,7 +133,8 @@ def run_one(args: argparse.Namespace, scenario_name: str, controller_name: str, 
             'seed': seed, 'round_trips': args.round_trips, 'period': args.period,
             'mode': 'fast' if args.fast else ('graph-free-run' if args.free_run
                                               else 'graph-lockstep'),
-            'initial_angles': initial.tolist()}
+            'initial_angles': initial.tolist(),
+            'measurement_noise': getattr(args, 'measurement_noise', 0.0)}
     if not args.fast:
         from dlmpc_ros.evaluation.graph_run import run_graph
         settings_args = _setting_strings(settings)
@@ -153,7 +162,8 @@ def run_one(args: argparse.Namespace, scenario_name: str, controller_name: str, 
         def progress(done: int) -> None:
             bar.update(done - bar.n)
         return run_closed_loop(controller, scenario, args.round_trips, args.period, initial,
-                               estimator=estimator, meta=meta, progress=progress)
+                               estimator=estimator, meta=meta, progress=progress,
+                               measurement_noise=args.measurement_noise, noise_seed=seed)
 
 
 def markdown_table(rows: list[dict]) -> str:

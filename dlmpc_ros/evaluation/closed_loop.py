@@ -31,15 +31,22 @@ def run_closed_loop(controller: Controller, scenario: Scenario, round_trips: int
                     cavity_config: CavityConfig | None = None,
                     estimator: SurrogateEstimator | None = None,
                     meta: dict | None = None,
-                    progress: Callable[[int], None] | None = None) -> RunRecord:
+                    progress: Callable[[int], None] | None = None,
+                    measurement_noise: float = 0.0, noise_seed: int = 0) -> RunRecord:
     """Run ``round_trips`` round trips of the closed loop; returns the record.
 
     ``estimator`` (optional) supplies the surrogate the controller gets with each
     measurement; a controller with ``observe_truth`` (the oracle) is shown the true K.
     ``progress`` is called with the number of round trips done, every control period.
+    ``measurement_noise`` is the relative standard deviation of independent Gaussian
+    errors on the E and M that the estimator and the controller see (a detector's
+    noise; seeded by ``noise_seed``); the record keeps the laser's true values.
     """
     if round_trips < 1 or period < 1:
         raise ValueError('round_trips and period must be >= 1')
+    if not 0 <= measurement_noise < 1:
+        raise ValueError(f'measurement_noise must be in [0, 1), got {measurement_noise}')
+    noise = np.random.default_rng(noise_seed)
     angles = np.zeros(4) if initial_angles is None else np.asarray(initial_angles, float)
     cavity = Cavity(cavity_config, batch=1, angles=angles, birefringence=scenario(1))
     builder = RecordBuilder(meta)
@@ -58,6 +65,8 @@ def run_closed_loop(controller: Controller, scenario: Scenario, round_trips: int
         if r % period:
             continue
         measurement = np.array([e, m, *applied])
+        if measurement_noise:
+            measurement[:2] *= 1.0 + measurement_noise * noise.standard_normal(2)
         started = time.perf_counter()
         surrogate = None if estimator is None else estimator.update(measurement)[0]
         estimate_ms = 1e3 * (time.perf_counter() - started)

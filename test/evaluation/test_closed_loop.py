@@ -36,3 +36,42 @@ def test_same_seed_same_run_and_the_oracle_sees_the_true_k():
     np.testing.assert_array_equal(runs[0].K[19:], 0.2)
     # K = 0 -> row 1 until round trip 20; from K = 0.2 on -> row 2 (nearest grid K)
     np.testing.assert_allclose(runs[0].angles[-1], 0.3)
+
+
+class _Recorder:
+    """A controller that holds the angles and keeps what it was shown."""
+
+    def __init__(self) -> None:
+        self.seen: list[np.ndarray] = []
+
+    def step(self, measurement, surrogate=None):
+        from dlmpc_ros.control.step import ControlStep
+        self.seen.append(np.array(measurement))
+        return ControlStep(angles=np.array(measurement[2:6]), mode='passive')
+
+
+def test_measurement_noise_reaches_the_controller_not_the_record():
+    scenario = make_scenario('constant', offset=0.1)
+    clean, noisy = _Recorder(), _Recorder()
+    a = run_closed_loop(clean, scenario, 50, 10, np.zeros(4), SMALL)
+    b = run_closed_loop(noisy, scenario, 50, 10, np.zeros(4), SMALL, measurement_noise=0.01,
+                        noise_seed=4)
+    np.testing.assert_array_equal(a.O, b.O)  # held angles: the laser itself is the same
+    shown_clean, shown_noisy = np.array(clean.seen), np.array(noisy.seen)
+    ratio = shown_noisy[:, :2] / shown_clean[:, :2] - 1
+    assert 0 < np.abs(ratio).max() < 0.05 and np.std(ratio) > 1e-3
+    np.testing.assert_array_equal(shown_noisy[:, 2:], shown_clean[:, 2:])  # angles exact
+    with np.testing.assert_raises(ValueError):
+        run_closed_loop(clean, scenario, 10, 10, measurement_noise=-0.1)
+
+
+def test_evaluate_takes_measurement_noise_in_fast_mode_only(capsys):
+    import pytest
+
+    from dlmpc_ros.cli.evaluate import parse_args
+    assert parse_args(['--fast', '--measurement-noise', '0.01', '--out', 'x']) \
+        .measurement_noise == 0.01
+    for bad in (['--measurement-noise', '0.01'], ['--fast', '--measurement-noise', '1.5']):
+        with pytest.raises(SystemExit):
+            parse_args([*bad, '--out', 'x'])
+    assert '--measurement-noise' in capsys.readouterr().err
