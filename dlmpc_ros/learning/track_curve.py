@@ -73,8 +73,9 @@ def train_curve_stage(models_dir: Path) -> dict:
     """``dlmpc-train curve``: models/oracle.npz -> models/track_curve.npz; its summary."""
     from dlmpc_ros.learning.baselines import load_baselines
     source = Path(models_dir) / 'oracle.npz'
-    curve = curve_from_baselines(load_baselines(source))
+    baselines = load_baselines(source)
+    curve = curve_from_baselines(baselines)
     save_curve(Path(models_dir) / FILE_NAME, curve, str(source))
     return {'points': int(curve['grid'].size),
             'mean_objective': float(np.mean(curve['objective'])),
-            'refined': bool('tracking_refined_angles' in load_baselines(source))}
+            'refined': 'tracking_refined_angles' in baselines}
