@@ -13,9 +13,9 @@ Usage::
 {"monitor_prediction": true}, "no tracking": {"tracking": null}, "slow tracking":
 {"tracking": {"max_step": 0.015}}, "noisy": {"measurement_noise": 0.01}}`` (``tracking``
 takes the fields of :class:`~dlmpc_ros.control.tracking.TrackingConfig`;
-``measurement_noise`` is the run's relative noise on the measured E and M). Writes the runs' metrics (plus the
-fraction of periods in each mode) as JSON and a markdown table of mean O / O* (mean over
-seeds, min-max) beside it.
+``measurement_noise`` is the run's relative noise on the measured E and M). Writes the
+runs' metrics (plus the fraction of periods in each mode) as JSON and a markdown table of
+mean O / O* (mean over seeds, min-max) beside it.
 """
 
 from __future__ import annotations
