@@ -182,7 +182,7 @@ class DLMPCController:
         if self.acquisition is not None:
             scan = self.acquisition.step(objective, current, surrogate)
             if scan is not None:
-                self._plan, self._predicted_next, self._queued = None, None, []
+                self._drop_plan()
                 if self.tracker is not None:
                     self.tracker.interrupt()
                 return self._finish(current, scan, 'acquire', surrogate, error, np.array([]),
@@ -190,7 +190,7 @@ class DLMPCController:
         if self.tracker is not None:
             on_curve = self.tracker.step(objective)
             if on_curve is not None:
-                self._plan, self._predicted_next, self._queued = None, None, []
+                self._drop_plan()
                 return self._finish(current, on_curve, 'track', self.tracker.estimate, error,
                                     np.array([]), 0, started, None)
         blocked = self._guard(objective)
@@ -199,13 +199,17 @@ class DLMPCController:
             return self._finish(current, wanted, 'outer', surrogate, error, np.array([]), 0,
                                 started, None)
         if not full or recent > self.config.error_threshold or blocked:
-            self._plan, self._predicted_next, self._queued = None, None, []
+            self._drop_plan()
             if not np.isfinite(surrogate):  # estimator silent: hold the angles
                 return self._finish(current, current, 'hold', surrogate, error, np.array([]),
                                     0, started, None)
             return self._finish(current, self.map_angles(surrogate), 'inner', surrogate, error,
                                 np.array([]), 0, started, None)
         return self._plan_outer(current, surrogate, error, started)
+
+    def _drop_plan(self) -> None:
+        """Forget the outer loop's plan and its pending prediction (another mode acts)."""
+        self._plan, self._predicted_next, self._queued = None, None, []
 
     def _guard(self, objective: float) -> bool:
         """Update the objective guard with this period's O; True: outer loop blocked."""

@@ -82,6 +82,25 @@ class TrackingConfig:
                              'survey periods >= 1')
 
 
+def check_curve(grid: np.ndarray, angles: np.ndarray, expected: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """A tracking curve as float arrays, checked: ``grid`` (n,) increasing, n >= 2,
+    ``angles`` (n, 4) finite [rad], ``expected`` (n,) finite steady O or None.
+
+    Raises ValueError saying what is wrong."""
+    grid, angles = np.asarray(grid, float), np.asarray(angles, float)
+    if grid.ndim != 1 or grid.size < 2 or angles.shape != (grid.size, 4) \
+            or not np.all(np.diff(grid) > 0) or not np.all(np.isfinite(angles)):
+        raise ValueError('a tracking curve needs an increasing grid (n >= 2) and finite '
+                         f'(n, 4) angles; got {grid.shape} and {angles.shape}')
+    if expected is not None:
+        expected = np.asarray(expected, float)
+        if expected.shape != grid.shape or not np.all(np.isfinite(expected)):
+            raise ValueError(f'the expected O {expected.shape} of a tracking curve must be '
+                             f'finite and fit its grid {grid.shape}')
+    return grid, angles, expected
+
+
 class CurveTracker:
     """Per control period: None while the inner loop is in charge, else the angles (4,)
     [rad] on the curve.
@@ -95,38 +114,22 @@ class CurveTracker:
     def __init__(self, grid: np.ndarray, angles: np.ndarray, threshold: float,
                  config: TrackingConfig | None = None,
                  expected: np.ndarray | None = None) -> None:
-        grid = np.asarray(grid, float)
-        angles = np.asarray(angles, float)
-        if grid.ndim != 1 or grid.size < 2 or angles.shape != (grid.size, 4) \
-                or not np.all(np.diff(grid) > 0) or not np.all(np.isfinite(angles)):
-            raise ValueError('a tracking curve needs an increasing grid (n >= 2) and finite '
-                             f'(n, 4) angles; got {grid.shape} and {angles.shape}')
+        self.grid, self.angles, self.expected = check_curve(grid, angles, expected)
         if not threshold > 0:
             raise ValueError(f'lock threshold must be > 0, got {threshold}')
         self.config = config or TrackingConfig()
-        self.grid, self.angles, self.threshold = grid, angles, float(threshold)
-        self.estimate = float(np.clip(self.config.start, grid[0], grid[-1]))
+        self.threshold = float(threshold)
         self.active = False
         self._locked = 0          # consecutive locked periods while not tracking
         self._recent: deque[float] = deque(maxlen=self.config.entry_patience)
         self._entry_objective = 0.0
-        self._age = 0             # periods since entry
-        self._low = 0             # consecutive periods under the guard
         self._wait = 0            # cooldown periods left
         self._cooldown = self.config.cooldown
-        self._sign = 1.0          # sign of the dither in the current block
-        self._in_block = 0
         self._blocks: deque[tuple[float, float]] = deque(maxlen=3)  # (sign, O)
-        self._step, self._last_move = self.config.step, 0.0        # Rprop step and sign
-        self.expected = None if expected is None else np.asarray(expected, float)
-        if self.expected is not None and self.expected.shape != grid.shape:
-            raise ValueError(f'expected O {self.expected.shape} does not fit the grid '
-                             f'{grid.shape}')
-        self._short = 0           # consecutive periods under survey_ratio x expected O
         self._survey_wait = 0
-        self._survey: list[float] = []                 # points still to visit
         self._survey_seen: list[tuple[float, float]] = []  # (point, O)
         self._dwell = 0
+        self._recentre()          # estimate at start; age, guard, dither and steps reset
 
     def curve(self, s: float) -> np.ndarray:
         """The curve's angles (4,) [rad] at parameter ``s`` (clipped to the grid)."""
@@ -218,12 +221,13 @@ class CurveTracker:
 
     def _recentre(self) -> None:
         """Put the estimate back to ``start`` and the dither to its first block."""
+        # periods since entry; consecutive periods under the guard and under the survey level
         self._age, self._low, self._short = 0, 0, 0
-        self._survey = []
+        self._survey: list[float] = []  # survey points still to visit
         self.estimate = float(np.clip(self.config.start, self.grid[0], self.grid[-1]))
-        self._sign, self._in_block = 1.0, 0
+        self._sign, self._in_block = 1.0, 0  # sign of the dither in the current block
         self._blocks.clear()
-        self._step, self._last_move = self.config.step, 0.0
+        self._step, self._last_move = self.config.step, 0.0  # Rprop step and last sign
 
     def _leave(self, failed: bool) -> None:
         """Hand back and wait a cooldown (doubled, up to 64 x, after a failed entry)."""

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dlmpc_ros.control.tracking import check_curve
 from dlmpc_ros.learning.baselines import read_npz, unwrap_table
 
 SCHEMA_VERSION = 1
@@ -60,13 +61,10 @@ def load_curve(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             or int(arrays.get('schema_version', -1)) != SCHEMA_VERSION:
         raise ValueError(f'tracking curve {path} lacks grid/angles/objective or has another '
                          f'schema; {HINT}')
-    grid, angles, objective = (np.asarray(a, float) for a in (grid, angles, objective))
-    if grid.ndim != 1 or grid.size < 2 or angles.shape != (grid.size, 4) \
-            or objective.shape != grid.shape or not np.all(np.diff(grid) > 0) \
-            or not (np.all(np.isfinite(angles)) and np.all(np.isfinite(objective))):
-        raise ValueError(f'tracking curve {path} is malformed (grid {grid.shape}, angles '
-                         f'{angles.shape}, objective {objective.shape}); {HINT}')
-    return grid, angles, objective
+    try:
+        return check_curve(grid, angles, objective)
+    except ValueError as err:
+        raise ValueError(f'tracking curve {path} is malformed ({err}); {HINT}') from None
 
 
 def train_curve_stage(models_dir: Path) -> dict:
