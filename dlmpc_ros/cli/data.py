@@ -2,8 +2,10 @@
 
 ``dlmpc-data all`` runs, in order: ``sweep`` (steady states over K x angle sets),
 ``oracle`` (the envelope O*(K) and its angles) and ``trajectories`` (drifting-K runs
-with exploring angles, one row per control period). Re-running resumes from the shards
-already written. ``--quick`` uses tiny settings (for tests and smoke runs).
+with exploring angles, one row per control period; then ``trajectories_extra``, more
+training lanes with their own seeds that only the predictor trains on). Re-running
+resumes from the shards already written. ``--quick`` uses tiny settings (for tests and
+smoke runs).
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ QUICK_ORACLE = OracleConfig(candidates=2, first_step=0.08, min_step=0.04, max_it
                             cap=100, check_directions=2)
 QUICK_TRAJECTORIES = TrajectoryConfig(train_lasers=6, test_lasers=3, round_trips=1500,
                                       segment_periods=50)
+#: Training lanes of ``trajectories_extra`` (no held-out lanes; its seed is --seed + 1).
+EXTRA_LANES, QUICK_EXTRA_LANES = 128, 4
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -52,8 +56,14 @@ def main(argv: list[str] | None = None) -> int:
         if args.stage in ('all', 'trajectories'):
             cfg = QUICK_TRAJECTORIES if args.quick else TrajectoryConfig()
             cfg = TrajectoryConfig(**{**cfg.to_dict(), 'seed': args.seed})
+            envelope = load_envelope(paths.oracle)
             report['trajectories'] = generate_trajectories(
-                paths.trajectories, load_envelope(paths.oracle), cavity, cfg, show)
+                paths.trajectories, envelope, cavity, cfg, show)
+            extra = TrajectoryConfig(**{
+                **cfg.to_dict(), 'test_lasers': 0, 'seed': args.seed + 1,
+                'train_lasers': QUICK_EXTRA_LANES if args.quick else EXTRA_LANES})
+            report['trajectories_extra'] = generate_trajectories(
+                paths.extra_trajectories, envelope, cavity, extra, show)
     except (FileNotFoundError, ValueError) as err:
         print(f'dlmpc-data: {err}', file=sys.stderr)
         return 2

@@ -52,7 +52,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"kmap: O/O* = {metrics['oracle_ratio_test_k']:.3f} (test K)", flush=True)
         if args.stage in ('all', 'mprnn'):
             from dlmpc_ros.learning.pipeline_mprnn import train_mprnn_stage
-            metrics = train_mprnn_stage(paths, args.seed, quick=args.quick, show_progress=show)
+            metrics = train_mprnn_stage(paths, args.seed, quick=args.quick, show_progress=show,
+                                        extra_trajectories=(paths.extra_trajectories,))
             write_metrics(paths, 'mprnn', metrics)
             print(f"mprnn: horizon-{len(metrics['rmse_O_model'])} O error / persistence = "
                   f"{metrics['rmse_O_model'][-1] / metrics['rmse_O_persistence'][-1]:.3f}",

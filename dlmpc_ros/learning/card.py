@@ -21,7 +21,8 @@ EXTRA_ROWS = (('kmap', 'oracle_ratio_from_median_state',
 
 def _data_meta(paths: Paths) -> dict:
     out = {}
-    for name, directory in (('sweep', paths.sweep), ('trajectories', paths.trajectories)):
+    for name, directory in (('sweep', paths.sweep), ('trajectories', paths.trajectories),
+                            ('trajectories_extra', paths.extra_trajectories)):
         meta = directory / 'metadata.json'
         if meta.exists():
             out[name] = json.loads(meta.read_text())
@@ -57,6 +58,10 @@ def write_model_card(paths: Paths) -> Path:
     if 'trajectories' in data:
         t = data['trajectories']
         lines.append(f"- trajectories: settings {json.dumps(t['settings']['trajectories'])}")
+    if 'trajectories_extra' in data:
+        t = data['trajectories_extra']
+        lines.append('- trajectories_extra (training lanes for the MP-RNN only): settings '
+                     f"{json.dumps(t['settings']['trajectories'])}")
     lines += ['', '## Models and measurements', '', '| model | figure | measured | target |',
               '|---|---|---|---|']
     for stage, (key, target, what) in TARGETS.items():
@@ -70,6 +75,12 @@ def write_model_card(paths: Paths) -> Path:
         ratio = m['rmse_O_model'][-1] / m['rmse_O_persistence'][-1]
         lines.append(f'| mprnn | O prediction RMSE at horizon {len(m["rmse_O_model"])} / '
                      f'persistence, held-out | {ratio:.3f} | <= 0.5 |')
+    if 'mprnn' in metrics:
+        lines += ['', 'How low the predictor target can go on this data: a plain GRU '
+                  'encoder-decoder trained on the same windows, from the measurements and '
+                  'also given the true K, `bench/predictor_reference.py` (recorded in '
+                  '`bench/results/predictor_reference.md`); training variants of the MP-RNN: '
+                  '`bench/results/mprnn_variants.md`.']
     lines += ['', 'Where the VAE surrogate gets its information from (the angles, or E and M), '
               'and how much of K one measurement holds (supervised probes, for comparison): '
               '`dlmpc-train check-estimator --out DIR`; for the shipped models it is recorded '

@@ -86,12 +86,12 @@ class MPRNNConfig:
     n_latent: int = 32
     """N_l: size of the recurrent latent l."""
     n_k: int = 1
+    """N_K: outputs of the K head (the surrogate's dimension)."""
     residual: bool = False
     """True: predict v_{tau+1} as v_tau plus the output layer (a skip connection that
     starts from persistence). False (default): the appendix's plain output layer, which
     measured better on the held-out trajectories (trained without the objective term, O
     error at horizon 10 relative to persistence: 0.97 plain, 1.05 residual)."""
-    """N_K: outputs of the K head (the surrogate's dimension)."""
     norm: dict[str, float] = field(default_factory=lambda: Normalizer().to_dict())
     """Normalizer of E and log M, as :meth:`Normalizer.to_dict`."""
 
@@ -448,6 +448,9 @@ class TrainConfig:
     """Windows per Adam step."""
     lr: float = 1e-3
     """Adam learning rate (stages 2 and 3)."""
+    cosine: bool = False
+    """True: the learning rate of each stage decays from ``lr`` to 0 along a half cosine
+    over its epochs (per Adam step); False: constant."""
     k_weight: float = 0.1
     """Weight of the K head's squared error against the surrogate."""
     encoder_weight: float = 0.5
@@ -501,6 +504,9 @@ def _train_stage(model: MPRNN, data: WindowDataset, config: TrainConfig, epochs:
         raise ValueError('no training windows')
     gen = torch.Generator().manual_seed(config.seed + seed_offset)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
+    steps_per_epoch = -(-len(data) // config.batch_size)
+    schedule = (torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs * steps_per_epoch)
+                if config.cosine and epochs > 0 else None)
     model.train()
     history: list[float] = []
     for epoch in range(epochs):
@@ -517,6 +523,8 @@ def _train_stage(model: MPRNN, data: WindowDataset, config: TrainConfig, epochs:
             if config.clip_norm > 0:
                 nn.utils.clip_grad_norm_(model.parameters(), config.clip_norm)
             opt.step()
+            if schedule is not None:
+                schedule.step()
             total += loss.item() * len(batch)
         history.append(total / len(order))
         if progress is not None:

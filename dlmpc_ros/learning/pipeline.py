@@ -48,6 +48,11 @@ class Paths:
     def trajectories(self) -> Path:
         return self.data_dir / 'trajectories'
 
+    @property
+    def extra_trajectories(self) -> Path:
+        """More training lanes for the predictor only (see ``dlmpc-data trajectories``)."""
+        return self.data_dir / 'trajectories_extra'
+
     def model(self, kind: str) -> Path:
         return self.models_dir / f'{kind}.pt'
 

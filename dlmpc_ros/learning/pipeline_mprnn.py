@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -18,8 +19,10 @@ from dlmpc_ros.learning.pipeline import (Paths, load_kmap, load_vae, measured_ar
 from dlmpc_ros.learning.trajectories import load_trajectories
 from dlmpc_ros.learning.vae import windows
 
+#: The shipped training (bench/results/mprnn_variants.md: the cosine decay helped, a higher
+#: rate, more epochs, wider layers and the residual output did not; more training lanes did).
 FULL = TrainConfig(crbm=CRBMTrainConfig(epochs=5), single_step_epochs=10, horizon_epochs=20,
-                   batch_size=256, lr=1e-3, objective_weight=400.0)
+                   batch_size=256, lr=1e-3, objective_weight=400.0, cosine=True)
 QUICK = TrainConfig(crbm=CRBMTrainConfig(epochs=1, max_samples=2000), single_step_epochs=1,
                     horizon_epochs=1, batch_size=64)
 
@@ -33,11 +36,20 @@ def surrogate_series(vae, measured: np.ndarray) -> np.ndarray:
 
 
 def train_mprnn_stage(paths: Paths, seed: int = 0, quick: bool = False,
-                      show_progress: bool = True, stride: int = 1) -> dict:
+                      show_progress: bool = True, stride: int = 1,
+                      model_overrides: dict | None = None,
+                      train_overrides: dict | None = None, save: bool = True,
+                      extra_trajectories: tuple[Path, ...] = ()) -> dict:
     """Train the MP-RNN on the training trajectories; measure on held-out ones.
 
     Held-out lanes are split in two: the first half chooses between the models after
     stage 2 and after stage 3 (lower O error at horizon N), the second half measures.
+    ``model_overrides`` and ``train_overrides`` replace fields of :class:`MPRNNConfig` and
+    of the stage's :class:`TrainConfig` (for ablations, bench/mprnn_variants.py); with
+    ``save=False`` nothing is written. The metrics include the validation errors
+    (``validation_rmse_O_*``) beside the test ones. The training lanes of every
+    ``extra_trajectories`` directory join the training set (validation and test stay the
+    held-out lanes of ``paths.trajectories``).
     """
     started = time.monotonic()
     traj = load_trajectories(paths.trajectories)
@@ -49,10 +61,17 @@ def train_mprnn_stage(paths: Paths, seed: int = 0, quick: bool = False,
     val_lanes, test_lanes = held[:max(1, held.size // 2)], held[max(1, held.size // 2):]
     if test_lanes.size == 0:
         test_lanes = val_lanes
-    config = MPRNNConfig(norm=vae.config.normalizer)
+    config = MPRNNConfig(**{'norm': vae.config.normalizer, **(model_overrides or {})})
     train_cfg = QUICK if quick else TrainConfig(**{**FULL.__dict__, 'seed': seed})
-    train = WindowDataset(measured[~traj['held_out']], surrogate[~traj['held_out']], config,
-                          stride=stride)
+    if train_overrides:
+        train_cfg = TrainConfig(**{**train_cfg.__dict__, **train_overrides})
+    train_measured = [measured[~traj['held_out']]]
+    for directory in extra_trajectories:
+        extra = load_trajectories(Path(directory))
+        train_measured.append(measured_array(extra)[~extra['held_out']])
+    train_measured = np.concatenate(train_measured)
+    train_surrogate = surrogate_series(vae, train_measured)
+    train = WindowDataset(train_measured, train_surrogate, config, stride=stride)
     val = WindowDataset(measured[val_lanes], surrogate[val_lanes], config, stride=5)
     test = WindowDataset(measured[test_lanes], surrogate[test_lanes], config, stride=1)
     torch.manual_seed(seed)
@@ -78,17 +97,24 @@ def train_mprnn_stage(paths: Paths, seed: int = 0, quick: bool = False,
         model.load_state_dict(snapshots[chosen][0])
     model.eval()
     errors = evaluate_horizon_errors(model, test).to_dict()
+    val_errors = evaluate_horizon_errors(model, val)
     metrics = {
         **{k: [float(x) for x in v] for k, v in errors.items()},
+        'validation_rmse_O_model': [float(x) for x in val_errors.o],
+        'validation_rmse_O_persistence': [float(x) for x in val_errors.o_persistence],
+        'model_config': {k: v for k, v in config.to_dict().items() if k != 'norm'},
         'chosen_after_stage': chosen,
         'validation_O_rmse_at_horizon': {k: v[1] for k, v in snapshots.items()},
         'histories': histories, 'train_windows': len(train), 'test_windows': len(test),
+        'train_trajectories': int(train_measured.shape[0]),
         'train_config': train_cfg.to_dict(), 'vae_fingerprint': vae_payload['data_fingerprint'],
         'wall_seconds': round(time.monotonic() - started, 1), 'seed': seed,
     }
-    save_mprnn(paths.model('mprnn'), model, metrics,
-               fingerprint_arrays({'measured': measured, 'surrogate': surrogate}))
-    plot_horizon_errors(metrics, paths.figures / 'mprnn_horizon.png')
+    if save:
+        save_mprnn(paths.model('mprnn'), model, metrics,
+                   fingerprint_arrays({'measured': measured, 'surrogate': surrogate,
+                                       'train_measured': train_measured}))
+        plot_horizon_errors(metrics, paths.figures / 'mprnn_horizon.png')
     return metrics
 
 

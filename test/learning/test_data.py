@@ -1,8 +1,10 @@
 """Dataset generation: sweep, oracle envelope and trajectories (tiny settings)."""
 
+import json
+
 import numpy as np
 
-from dlmpc_ros.cli.data import QUICK_SWEEP, QUICK_TRAJECTORIES
+from dlmpc_ros.cli.data import QUICK_EXTRA_LANES, QUICK_SWEEP, QUICK_TRAJECTORIES
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.learning import shards
 from dlmpc_ros.learning.oracle import envelope_angles, envelope_objective, load_envelope
@@ -53,3 +55,14 @@ def test_trajectories_have_drifting_k_and_moving_angles(quick_data):
     assert (np.abs(traj['K']) <= 0.3).all() and (np.ptp(traj['K'], axis=1) > 0.001).all()
     assert (np.abs(np.diff(traj['alpha'], axis=1)).max(axis=(1, 2)) > 0.01).all()
     assert np.isfinite(traj['E']).all() and np.isfinite(traj['M']).all()
+
+
+def test_extra_trajectories_are_new_training_lanes(quick_data):
+    main = load_trajectories(quick_data / 'trajectories')
+    extra = load_trajectories(quick_data / 'trajectories_extra')
+    assert extra['E'].shape == (QUICK_EXTRA_LANES, main['E'].shape[1])
+    assert not extra['held_out'].any()
+    seeds = json.loads((quick_data / 'trajectories' / 'metadata.json').read_text())['seeds']
+    extra_seeds = json.loads((quick_data / 'trajectories_extra' / 'metadata.json').read_text())
+    assert not set(seeds) & set(extra_seeds['seeds'])
+    assert not np.allclose(extra['K'][0], main['K'][0])

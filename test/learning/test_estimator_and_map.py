@@ -6,12 +6,14 @@ import numpy as np
 import pytest
 import torch
 
+from dlmpc_ros.cli.data import QUICK_EXTRA_LANES
 from dlmpc_ros.learning.checkpoint import ModelFileError, load_checkpoint, save_checkpoint
 from dlmpc_ros.learning.features import Normalizer
 from dlmpc_ros.learning.fit import fit
 from dlmpc_ros.learning.kmap import SubsetRule, train_kmap, training_subset
 from dlmpc_ros.learning.pipeline import (Paths, load_kmap, load_vae, train_kmap_stage,
                                          train_vae_stage)
+from dlmpc_ros.learning.trajectories import load_trajectories
 from dlmpc_ros.learning.vae import ConditionalVAE, VAEConfig, choose_surrogate, windows
 
 
@@ -114,6 +116,9 @@ def test_train_command_builds_every_model_file_and_the_card(quick_data, tmp_path
     assert out.u.shape == (2, model.config.horizon, 4)
     card = (models / 'MODEL_CARD.md').read_text()
     assert '| vae |' in card and '| mprnn |' in card
+    metrics = json.loads((models / 'metrics.json').read_text())
+    held_out = load_trajectories(quick_data / 'trajectories')['held_out']
+    assert metrics['mprnn']['train_trajectories'] == (~held_out).sum() + QUICK_EXTRA_LANES
 
     report = tmp_path / 'check'
     assert train_main(['check-estimator', '--quick', '--no-progress', '--data-dir',

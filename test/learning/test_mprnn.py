@@ -310,3 +310,26 @@ def test_objective_term_adds_the_squared_error_of_o():
     expected = ((out.objective - norm.objective(future_x[..., :2])) ** 2).sum(1).mean()
     with_o = mprnn_loss(out, batch, objective_weight=7.0, norm=norm)
     assert torch.isclose(with_o - base, 7.0 * expected, rtol=1e-4)
+
+
+def test_cosine_schedule_shrinks_the_late_updates():
+    """With ``cosine`` the learning rate falls to 0 over the stage, so the second of two
+    epochs moves the weights much less than the first; at a constant rate it does not."""
+    from dlmpc_ros.learning.mprnn import train_single_step
+
+    measured, surrogate = synthetic_laser(4, 60, seed=2)
+    norm = Normalizer.fit(measured[..., 0], measured[..., 1])
+    config = MPRNNConfig(window=2, horizon=4, n_hidden=16, n_latent=8, norm=norm.to_dict())
+    data = WindowDataset(measured, surrogate, config)
+
+    def late_over_early(cosine: bool) -> float:
+        model = MPRNN(config, seed=0)
+        snapshots = [torch.cat([p.detach().flatten() for p in model.parameters()])]
+        settings = TrainConfig(single_step_epochs=2, batch_size=16, lr=3e-3, cosine=cosine)
+        train_single_step(model, data, settings, progress=lambda *_: snapshots.append(
+            torch.cat([p.detach().flatten() for p in model.parameters()])))
+        first, second = (float((b - a).norm()) for a, b in zip(snapshots, snapshots[1:]))
+        return second / first
+
+    assert late_over_early(cosine=True) < 0.5 * late_over_early(cosine=False)
+
