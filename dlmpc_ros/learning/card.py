@@ -79,7 +79,8 @@ def write_model_card(paths: Paths) -> Path:
         lines += ['', 'How low the predictor target can go on this data: a plain GRU '
                   'encoder-decoder trained on the same windows, from the measurements and '
                   'also given the true K, `bench/predictor_reference.py` (recorded in '
-                  '`bench/results/predictor_reference.md`); training variants of the MP-RNN: '
+                  '`bench/results/predictor_reference_64.md` and `_192.md`, for 64 and 192 '
+                  'training lanes); training variants of the MP-RNN: '
                   '`bench/results/mprnn_variants.md`.']
     lines += ['', 'Where the VAE surrogate gets its information from (the angles, or E and M), '
               'and how much of K one measurement holds (supervised probes, for comparison): '
