@@ -90,8 +90,9 @@ class MPRNNConfig:
     residual: bool = False
     """True: predict v_{tau+1} as v_tau plus the output layer (a skip connection that
     starts from persistence). False (default): the appendix's plain output layer, which
-    measured better on the held-out trajectories (trained without the objective term, O
-    error at horizon 10 relative to persistence: 0.97 plain, 1.05 residual)."""
+    measured better on the held-out trajectories (O error at horizon 10 relative to
+    persistence: 0.97 plain, 1.05 residual without the objective term; 0.735 plain, 0.860
+    residual with it and the cosine schedule, bench/results/mprnn_variants.md)."""
     norm: dict[str, float] = field(default_factory=lambda: Normalizer().to_dict())
     """Normalizer of E and log M, as :meth:`Normalizer.to_dict`."""
 

@@ -332,4 +332,3 @@ def test_cosine_schedule_shrinks_the_late_updates():
         return second / first
 
     assert late_over_early(cosine=True) < 0.5 * late_over_early(cosine=False)
-
