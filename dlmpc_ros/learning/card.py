@@ -75,7 +75,6 @@ def write_model_card(paths: Paths) -> Path:
         ratio = m['rmse_O_model'][-1] / m['rmse_O_persistence'][-1]
         lines.append(f'| mprnn | O prediction RMSE at horizon {len(m["rmse_O_model"])} / '
                      f'persistence, held-out | {ratio:.3f} | <= 0.5 |')
-    if 'mprnn' in metrics:
         lines += ['', 'How low the predictor target can go on this data: a plain GRU '
                   'encoder-decoder trained on the same windows, from the measurements and '
                   'also given the true K, `bench/predictor_reference.py` (recorded in '

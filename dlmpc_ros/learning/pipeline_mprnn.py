@@ -66,12 +66,14 @@ def train_mprnn_stage(paths: Paths, seed: int = 0, quick: bool = False,
     if train_overrides:
         train_cfg = TrainConfig(**{**train_cfg.__dict__, **train_overrides})
     train_measured = [measured[~traj['held_out']]]
+    train_surrogate = [surrogate[~traj['held_out']]]
     for directory in extra_trajectories:
         extra = load_trajectories(Path(directory))
         train_measured.append(measured_array(extra)[~extra['held_out']])
+        train_surrogate.append(surrogate_series(vae, train_measured[-1]))
     train_measured = np.concatenate(train_measured)
-    train_surrogate = surrogate_series(vae, train_measured)
-    train = WindowDataset(train_measured, train_surrogate, config, stride=stride)
+    train = WindowDataset(train_measured, np.concatenate(train_surrogate), config,
+                          stride=stride)
     val = WindowDataset(measured[val_lanes], surrogate[val_lanes], config, stride=5)
     test = WindowDataset(measured[test_lanes], surrogate[test_lanes], config, stride=1)
     torch.manual_seed(seed)
