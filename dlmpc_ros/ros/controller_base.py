@@ -3,8 +3,10 @@
 A state message whose round trip r has r % period == 0 becomes the pending measurement.
 A node that uses the estimator acts once the estimate of the same round trip arrives, or
 after ``estimator_timeout`` seconds without it (the controller then gets no surrogate and
-says so on its status, ``estimator_age`` = periods since the last estimate). It publishes
-the angles on /laser/angles_cmd and the decision on /controller/status.
+says so on its status, ``estimator_age`` = periods since the last estimate). A period is
+never skipped: when the next period's state arrives first, the pending one is acted on at
+once, with whatever estimate it has, because the controller's histories assume one row per
+period. It publishes the angles on /laser/angles_cmd and the decision on /controller/status.
 """
 
 from __future__ import annotations
@@ -88,8 +90,10 @@ class ControllerNodeBase(Node):
         round_trip = int(msg.data[0])
         if round_trip % self.period or round_trip == self._last_acted:
             return None
-        if self._pending is None:  # the timeout runs from the oldest unanswered state
-            self._pending_since = self.get_clock().now().nanoseconds * 1e-9
+        if self._pending is not None:  # the next period came first: answer this one now
+            self._act(self._estimates.get(int(self._pending[0])),
+                      why='before the next period\'s state')
+        self._pending_since = self.get_clock().now().nanoseconds * 1e-9
         self._pending = np.array(msg.data, float)
         self._try_act()
         return None
@@ -117,7 +121,8 @@ class ControllerNodeBase(Node):
         now = self.get_clock().now().nanoseconds * 1e-9
         if (self._pending is not None
                 and now - self._pending_since > self.values['estimator_timeout']):
-            self._act(surrogate=None)
+            self._act(surrogate=None,
+                      why=f"within {self.values['estimator_timeout']:g} s")
 
     def _try_act(self) -> None:
         if self._pending is None:
@@ -138,7 +143,7 @@ class ControllerNodeBase(Node):
         the same one."""
         return self.controller
 
-    def _act(self, surrogate: float | None) -> None:
+    def _act(self, surrogate: float | None, why: str = '') -> None:
         state, self._pending = self._pending, None
         round_trip = int(state[0])
         self._last_acted = round_trip
@@ -159,8 +164,8 @@ class ControllerNodeBase(Node):
         status = [round_trip, step.mode_index, error, step.iterations, step.latency_ms,
                   step.surrogate if valid else 0.0, float(valid), age]
         if surrogate is None and self.uses_estimator:
-            self._warn('estimator', f'no estimate for round trip {round_trip} within '
-                       f"{self.values['estimator_timeout']:g} s: mode {step.mode}")
+            self._warn('estimator', f'no estimate for round trip {round_trip} {why}: '
+                       f'mode {step.mode}')
         self._status_pub.publish(vector_message(
             [*itf.CONTROLLER_STATUS_FIELDS,
              *(f'predicted_O{i + 1}' for i in range(step.predicted_objective.size))],

@@ -30,6 +30,18 @@ def _state(round_trip, e=3.2, m=18.0, angles=ANGLES):
     return [round_trip, e, m, e / m, e, 1.0, *angles]
 
 
+def _periods(probe, status, ends, period=10, estimate=True, **state):
+    """Publish each control period's states (its estimate first) and wait for its decision,
+    so that every decision sees its own estimate however slow the machine is."""
+    for end in ends:
+        if estimate:
+            probe.publish(itf.TOPIC_ESTIMATE, [end, 0.2, 0.5, 0.2, 0.1])
+        for r in range(end - period + 1, end + 1):
+            probe.publish(itf.TOPIC_STATE, _state(r, **state), itf.STATE_FIELDS)
+        n = len(status) + 1
+        probe.spin_until(lambda: len(status) >= n, 60, f'the decision at round trip {end}')
+
+
 def _start(module, ros_env, tmp_path, *params):
     args = []
     for p in params:
@@ -63,7 +75,7 @@ def test_mpc_controller_acts_each_period_holds_without_estimator_and_never_reads
         ros_env, tmp_path, probe):
     commands = probe.listen(itf.TOPIC_ANGLES_CMD)
     status = probe.listen(itf.TOPIC_CONTROLLER_STATUS)
-    node = _start(MPC, ros_env, tmp_path, 'period:=10', 'estimator_timeout:=0.2',
+    node = _start(MPC, ros_env, tmp_path, 'period:=10', 'estimator_timeout:=1.0',
                   'max_step:=0.1', 'track:=false')  # the inner loop and hold; tracking below
     try:
         probe.wait_matched(itf.TOPIC_STATE)
@@ -73,11 +85,7 @@ def test_mpc_controller_acts_each_period_holds_without_estimator_and_never_reads
             'mpc_controller', '/')}
         assert topics == {itf.TOPIC_STATE, itf.TOPIC_ESTIMATE}
         # With estimates: the inner loop maps the surrogate to angles, one step at a time.
-        for r in range(1, 31):
-            probe.publish(itf.TOPIC_STATE, _state(r), itf.STATE_FIELDS)
-            if r % 10 == 0:
-                probe.publish(itf.TOPIC_ESTIMATE, [r, 0.2, 0.5, 0.2, 0.1])
-        probe.spin_until(lambda: len(status) >= 3, 60, '3 decisions')
+        _periods(probe, status, [10, 20, 30])
         rows = [list(m.data) for m in status]
         assert [row[0] for row in rows] == [10, 20, 30]
         assert [MODES[int(row[1])] for row in rows] == ['inner'] * 3
@@ -168,12 +176,33 @@ def test_mpc_controller_scans_for_lock_while_the_laser_is_off_its_pulse(
     try:
         probe.wait_matched(itf.TOPIC_STATE)
         probe.wait_matched(itf.TOPIC_ESTIMATE)
-        for r in range(1, 51):  # O = 0.3 / 30 = 0.01: no pulse
-            probe.publish(itf.TOPIC_STATE, _state(r, e=0.3, m=30.0), itf.STATE_FIELDS)
-            if r % 10 == 0:
-                probe.publish(itf.TOPIC_ESTIMATE, [r, 0.2, 0.5, 0.2, 0.1])
-        probe.spin_until(lambda: len(status) >= 5, 60, '5 decisions')
+        _periods(probe, status, [10, 20, 30, 40, 50], e=0.3, m=30.0)  # O = 0.01: no pulse
         modes = [MODES[int(m.data[1])] for m in status]
         assert modes == (['inner'] * 2 + ['acquire'] * 3 if acquire else ['inner'] * 5)
     finally:
         assert node.stop() == 0
+
+
+def test_controller_answers_every_period_even_when_the_next_state_beats_the_estimate(
+        ros_env, tmp_path, probe):
+    status = probe.listen(itf.TOPIC_CONTROLLER_STATUS)
+    node = _start(MPC, ros_env, tmp_path, 'period:=10', 'estimator_timeout:=30.0',
+                  'track:=false')
+    try:
+        probe.wait_matched(itf.TOPIC_STATE)
+        probe.wait_matched(itf.TOPIC_ESTIMATE)
+        for r in range(1, 21):  # two periods, no estimate yet: the timeout is far away
+            probe.publish(itf.TOPIC_STATE, _state(r), itf.STATE_FIELDS)
+        probe.spin_until(lambda: len(status) >= 1, 20, 'the first period answered')
+        first = list(status[0].data)
+        assert first[0] == 10 and MODES[int(first[1])] == 'hold' and first[6] == 0.0
+        for _ in range(10):
+            probe.executor.spin_once(timeout_sec=0.05)
+        assert len(status) == 1, 'the second period did not wait for its estimate'
+        probe.publish(itf.TOPIC_ESTIMATE, [20, 0.2, 0.5, 0.2, 0.1])
+        probe.spin_until(lambda: len(status) >= 2, 20, 'the second period answered')
+        second = list(status[1].data)
+        assert second[0] == 20 and MODES[int(second[1])] == 'inner' and second[6] == 1.0
+    finally:
+        assert node.stop() == 0
+    assert "no estimate for round trip 10 before the next period's state" in node.output()
