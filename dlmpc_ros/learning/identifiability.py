@@ -152,6 +152,9 @@ def check_estimator(paths: Paths, out_dir: Path, config: ProbeConfig = ProbeConf
     steady = sweep['converged'] & sweep['finite']
     sweep_measured, sweep_k = measured_array(sweep)[steady], sweep['K'][steady]
     sweep_train = np.random.default_rng(config.seed).random(sweep_k.size) < 0.8
+    # the same share of whole angle sets (chains) held out: K at angles never seen in training
+    chain = sweep['chain'][steady]
+    set_train = np.random.default_rng(config.seed).random(int(chain.max()) + 1)[chain] < 0.8
     norm = Normalizer(**vae.config.normalizer)
     if vae.config.window != 1 and show_progress:
         print(f'note: a window-{vae.config.window} model sees each measurement repeated '
@@ -172,7 +175,10 @@ def check_estimator(paths: Paths, out_dir: Path, config: ProbeConfig = ProbeConf
               'sweep': probe_table(sweep_measured, sweep_k, sweep_train, norm,
                                    {'all samples': np.ones(sweep_k.size, bool),
                                     'pulsed (1+ pulses)': pulsed,
-                                    'continuous wave': ~pulsed}, config)}
+                                    'continuous wave': ~pulsed}, config),
+              'sweep, held-out angle sets': probe_table(
+                  sweep_measured, sweep_k, set_train, norm,
+                  {'all samples': np.ones(sweep_k.size, bool)}, config)}
     if show_progress:
         print('probe |r|:', json.dumps(probes), flush=True)
     result = {'surrogate_abs_r': sources, 'supervised_probe_abs_r': probes,
