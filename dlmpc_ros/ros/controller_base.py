@@ -4,9 +4,10 @@ A state message whose round trip r has r % period == 0 becomes the pending measu
 A node that uses the estimator acts once the estimate of the same round trip arrives, or
 after ``estimator_timeout`` seconds without it (the controller then gets no surrogate and
 says so on its status, ``estimator_age`` = periods since the last estimate). A period is
-never skipped: when the next period's state arrives first, the pending one is acted on at
-once, with whatever estimate it has, because the controller's histories assume one row per
-period. It publishes the angles on /laser/angles_cmd and the decision on /controller/status.
+never skipped: when the next period's state arrives before the pending period's estimate,
+the pending one is acted on at once without it, because the controller's histories assume
+one row per period. It publishes the angles on /laser/angles_cmd and the decision on
+/controller/status.
 """
 
 from __future__ import annotations
@@ -90,9 +91,10 @@ class ControllerNodeBase(Node):
         round_trip = int(msg.data[0])
         if round_trip % self.period or round_trip == self._last_acted:
             return None
-        if self._pending is not None:  # the next period came first: answer this one now
-            self._act(self._estimates.get(int(self._pending[0])),
-                      why='before the next period\'s state')
+        if self._pending is not None:
+            if round_trip == int(self._pending[0]):
+                return None  # a repeat of the state that waits for its estimate
+            self._act(None, why="before the next period's state")  # answer it now
         self._pending_since = self.get_clock().now().nanoseconds * 1e-9
         self._pending = np.array(msg.data, float)
         self._try_act()

@@ -191,8 +191,8 @@ def test_controller_answers_every_period_even_when_the_next_state_beats_the_esti
     try:
         probe.wait_matched(itf.TOPIC_STATE)
         probe.wait_matched(itf.TOPIC_ESTIMATE)
-        for r in range(1, 21):  # two periods, no estimate yet: the timeout is far away
-            probe.publish(itf.TOPIC_STATE, _state(r), itf.STATE_FIELDS)
+        for r in [*range(1, 11), 10, *range(11, 21), 20]:  # two periods (each state 10 and
+            probe.publish(itf.TOPIC_STATE, _state(r), itf.STATE_FIELDS)  # 20 twice), no estimate
         probe.spin_until(lambda: len(status) >= 1, 20, 'the first period answered')
         first = list(status[0].data)
         assert first[0] == 10 and MODES[int(first[1])] == 'hold' and first[6] == 0.0
@@ -203,6 +203,9 @@ def test_controller_answers_every_period_even_when_the_next_state_beats_the_esti
         probe.spin_until(lambda: len(status) >= 2, 20, 'the second period answered')
         second = list(status[1].data)
         assert second[0] == 20 and MODES[int(second[1])] == 'inner' and second[6] == 1.0
+        for _ in range(10):
+            probe.executor.spin_once(timeout_sec=0.05)
+        assert len(status) == 2, 'a repeated state was answered twice'
     finally:
         assert node.stop() == 0
     assert "no estimate for round trip 10 before the next period's state" in node.output()
