@@ -49,6 +49,14 @@ def _start(module, ros_env, tmp_path, *params):
     return NodeProcess(module, ros_env, tmp_path / f'{module.rsplit(".", 1)[1]}.log', *args)
 
 
+def _start_mpc(probe, ros_env, tmp_path, *params) -> NodeProcess:
+    """The DL-MPC controller node, once it reads the probe's states and estimates."""
+    node = _start(MPC, ros_env, tmp_path, 'period:=10', *params)
+    probe.wait_matched(itf.TOPIC_STATE)
+    probe.wait_matched(itf.TOPIC_ESTIMATE)
+    return node
+
+
 def test_estimator_publishes_one_finite_estimate_per_period_and_drops_bad_states(
         ros_env, tmp_path, probe):
     estimates = probe.listen(itf.TOPIC_ESTIMATE)
@@ -75,11 +83,9 @@ def test_mpc_controller_acts_each_period_holds_without_estimator_and_never_reads
         ros_env, tmp_path, probe):
     commands = probe.listen(itf.TOPIC_ANGLES_CMD)
     status = probe.listen(itf.TOPIC_CONTROLLER_STATUS)
-    node = _start(MPC, ros_env, tmp_path, 'period:=10', 'estimator_timeout:=1.0',
-                  'max_step:=0.1', 'track:=false')  # the inner loop and hold; tracking below
+    node = _start_mpc(probe, ros_env, tmp_path, 'estimator_timeout:=1.0', 'max_step:=0.1',
+                      'track:=false')  # the inner loop and hold; tracking below
     try:
-        probe.wait_matched(itf.TOPIC_STATE)
-        probe.wait_matched(itf.TOPIC_ESTIMATE)
         probe.spin_until(lambda: 'mpc_controller' in probe.node.get_node_names(), 30, 'node')
         topics = {name for name, _ in probe.node.get_subscriber_names_and_types_by_node(
             'mpc_controller', '/')}
@@ -116,21 +122,14 @@ def test_mpc_controller_tracks_the_curve_once_locked_even_without_estimates(
     from dlmpc_ros.learning.track_curve import load_curve
     status = probe.listen(itf.TOPIC_CONTROLLER_STATUS)
     commands = probe.listen(itf.TOPIC_ANGLES_CMD)
-    node = _start(MPC, ros_env, tmp_path, 'period:=10', 'estimator_timeout:=0.2',
-                  'max_step:=3.0')
+    node = _start_mpc(probe, ros_env, tmp_path, 'estimator_timeout:=0.2', 'max_step:=3.0')
     try:
-        probe.wait_matched(itf.TOPIC_STATE)
-        probe.wait_matched(itf.TOPIC_ESTIMATE)
         # A locked laser (O = 3.2 / 18 is above the lock level): inner loop, then tracking.
         patience = TrackingConfig().entry_patience
-        for r in range(10, 10 * patience + 1, 10):
-            probe.publish(itf.TOPIC_STATE, _state(r), itf.STATE_FIELDS)
-            probe.publish(itf.TOPIC_ESTIMATE, [r, 0.2, 0.5, 0.2, 0.1])
-            probe.spin_until(lambda n=r // 10: len(status) >= n, 30, f'decision {r // 10}')
+        _periods(probe, status, range(10, 10 * patience + 1, 10))
         # The estimator falls silent: tracking needs no estimate and goes on.
-        for r in range(10 * patience + 10, 10 * patience + 31, 10):
-            probe.publish(itf.TOPIC_STATE, _state(r), itf.STATE_FIELDS)
-            probe.spin_until(lambda n=r // 10: len(status) >= n, 30, f'decision {r // 10}')
+        _periods(probe, status, range(10 * patience + 10, 10 * patience + 31, 10),
+                 estimate=False)
     finally:
         assert node.stop() == 0
     rows = [list(m.data) for m in status]
@@ -171,11 +170,9 @@ def test_lockstep_laser_waits_for_each_command(ros_env, tmp_path, probe):
 def test_mpc_controller_scans_for_lock_while_the_laser_is_off_its_pulse(
         ros_env, tmp_path, probe, acquire):
     status = probe.listen(itf.TOPIC_CONTROLLER_STATUS)
-    node = _start(MPC, ros_env, tmp_path, 'period:=10', 'acquire_patience:=2',
-                  f'acquire:={str(acquire).lower()}')
+    node = _start_mpc(probe, ros_env, tmp_path, 'acquire_patience:=2',
+                      f'acquire:={str(acquire).lower()}')
     try:
-        probe.wait_matched(itf.TOPIC_STATE)
-        probe.wait_matched(itf.TOPIC_ESTIMATE)
         _periods(probe, status, [10, 20, 30, 40, 50], e=0.3, m=30.0)  # O = 0.01: no pulse
         modes = [MODES[int(m.data[1])] for m in status]
         assert modes == (['inner'] * 2 + ['acquire'] * 3 if acquire else ['inner'] * 5)
@@ -183,29 +180,27 @@ def test_mpc_controller_scans_for_lock_while_the_laser_is_off_its_pulse(
         assert node.stop() == 0
 
 
+def _only_answer(probe, status, n) -> list[float]:
+    """The n-th decision, after checking for half a second that no other follows it."""
+    probe.spin_until(lambda: len(status) >= n, 20, f'decision {n}')
+    for _ in range(10):
+        probe.executor.spin_once(timeout_sec=0.05)
+    assert len(status) == n, f'{len(status)} decisions where {n} were due'
+    return list(status[n - 1].data)
+
+
 def test_controller_answers_every_period_even_when_the_next_state_beats_the_estimate(
         ros_env, tmp_path, probe):
     status = probe.listen(itf.TOPIC_CONTROLLER_STATUS)
-    node = _start(MPC, ros_env, tmp_path, 'period:=10', 'estimator_timeout:=30.0',
-                  'track:=false')
+    node = _start_mpc(probe, ros_env, tmp_path, 'estimator_timeout:=30.0', 'track:=false')
     try:
-        probe.wait_matched(itf.TOPIC_STATE)
-        probe.wait_matched(itf.TOPIC_ESTIMATE)
         for r in [*range(1, 11), 10, *range(11, 21), 20]:  # two periods (each state 10 and
             probe.publish(itf.TOPIC_STATE, _state(r), itf.STATE_FIELDS)  # 20 twice), no estimate
-        probe.spin_until(lambda: len(status) >= 1, 20, 'the first period answered')
-        first = list(status[0].data)
+        first = _only_answer(probe, status, 1)
         assert first[0] == 10 and MODES[int(first[1])] == 'hold' and first[6] == 0.0
-        for _ in range(10):
-            probe.executor.spin_once(timeout_sec=0.05)
-        assert len(status) == 1, 'the second period did not wait for its estimate'
         probe.publish(itf.TOPIC_ESTIMATE, [20, 0.2, 0.5, 0.2, 0.1])
-        probe.spin_until(lambda: len(status) >= 2, 20, 'the second period answered')
-        second = list(status[1].data)
+        second = _only_answer(probe, status, 2)  # and not a second answer to the repeat
         assert second[0] == 20 and MODES[int(second[1])] == 'inner' and second[6] == 1.0
-        for _ in range(10):
-            probe.executor.spin_once(timeout_sec=0.05)
-        assert len(status) == 2, 'a repeated state was answered twice'
     finally:
         assert node.stop() == 0
     assert "no estimate for round trip 10 before the next period's state" in node.output()
