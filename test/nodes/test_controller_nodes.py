@@ -38,8 +38,9 @@ def _periods(probe, status, ends, period=10, estimate=True, **state):
             probe.publish(itf.TOPIC_ESTIMATE, [end, 0.2, 0.5, 0.2, 0.1])
         for r in range(end - period + 1, end + 1):
             probe.publish(itf.TOPIC_STATE, _state(r, **state), itf.STATE_FIELDS)
-        n = len(status) + 1
-        probe.spin_until(lambda: len(status) >= n, 60, f'the decision at round trip {end}')
+        due = len(status) + 1
+        probe.spin_until(lambda due=due: len(status) >= due, 60,
+                         f'the decision at round trip {end}')
 
 
 def _start(module, ros_env, tmp_path, *params):
@@ -52,8 +53,12 @@ def _start(module, ros_env, tmp_path, *params):
 def _start_mpc(probe, ros_env, tmp_path, *params) -> NodeProcess:
     """The DL-MPC controller node, once it reads the probe's states and estimates."""
     node = _start(MPC, ros_env, tmp_path, 'period:=10', *params)
-    probe.wait_matched(itf.TOPIC_STATE)
-    probe.wait_matched(itf.TOPIC_ESTIMATE)
+    try:
+        probe.wait_matched(itf.TOPIC_STATE)
+        probe.wait_matched(itf.TOPIC_ESTIMATE)
+    except BaseException:
+        node.stop()
+        raise
     return node
 
 
