@@ -138,15 +138,14 @@ def main(argv: list[str] | None = None) -> int:
 
     from dlmpc_ros.learning.mprnn import MPRNNConfig, WindowDataset
     from dlmpc_ros.learning.pipeline import Paths, load_vae, measured_array
-    from dlmpc_ros.learning.pipeline_mprnn import surrogate_series
+    from dlmpc_ros.learning.pipeline_mprnn import split_held_out, surrogate_series
     from dlmpc_ros.learning.trajectories import load_trajectories
 
     paths = Paths(args.data_dir, args.models_dir)
     traj = load_trajectories(paths.trajectories)
     vae, _ = load_vae(paths.model('vae'))
     measured = measured_array(traj)
-    held = np.flatnonzero(traj['held_out'])  # split as in the MP-RNN stage
-    val_lanes, test_lanes = held[:max(1, held.size // 2)], held[max(1, held.size // 2):]
+    val_lanes, test_lanes = split_held_out(traj['held_out'])  # as in the MP-RNN stage
     config = MPRNNConfig(norm=vae.config.normalizer)
     train_lanes = np.flatnonzero(~traj['held_out'])
     parts = {'train': [(measured[train_lanes], traj['K'][train_lanes])],

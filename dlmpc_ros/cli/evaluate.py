@@ -134,7 +134,7 @@ def run_one(args: argparse.Namespace, scenario_name: str, controller_name: str, 
             'mode': 'fast' if args.fast else ('graph-free-run' if args.free_run
                                               else 'graph-lockstep'),
             'initial_angles': initial.tolist(),
-            'measurement_noise': getattr(args, 'measurement_noise', 0.0)}
+            'measurement_noise': args.measurement_noise}
     if not args.fast:
         from dlmpc_ros.evaluation.graph_run import run_graph
         settings_args = _setting_strings(settings)

@@ -35,6 +35,15 @@ def surrogate_series(vae, measured: np.ndarray) -> np.ndarray:
     return np.concatenate([np.repeat(s[:, :1], w - 1, axis=1), s], axis=1)
 
 
+def split_held_out(held_out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Validation and test lane indices of the held-out lanes ((lanes,) booleans): the
+    first half chooses between models, the second half measures (the same lanes when
+    there is only one)."""
+    held = np.flatnonzero(held_out)
+    val_lanes, test_lanes = held[:max(1, held.size // 2)], held[max(1, held.size // 2):]
+    return val_lanes, (test_lanes if test_lanes.size else val_lanes)
+
+
 def train_mprnn_stage(paths: Paths, seed: int = 0, quick: bool = False,
                       show_progress: bool = True, stride: int = 1,
                       model_overrides: dict | None = None,
@@ -57,10 +66,7 @@ def train_mprnn_stage(paths: Paths, seed: int = 0, quick: bool = False,
     kmap, _ = load_kmap(paths.model('kmap'))
     measured = measured_array(traj)
     surrogate = surrogate_series(vae, measured)
-    held = np.flatnonzero(traj['held_out'])
-    val_lanes, test_lanes = held[:max(1, held.size // 2)], held[max(1, held.size // 2):]
-    if test_lanes.size == 0:
-        test_lanes = val_lanes
+    val_lanes, test_lanes = split_held_out(traj['held_out'])
     config = MPRNNConfig(**{'norm': vae.config.normalizer, **(model_overrides or {})})
     train_cfg = QUICK if quick else TrainConfig(**{**FULL.__dict__, 'seed': seed})
     if train_overrides:
