@@ -46,8 +46,10 @@ data: $(STAMP)
 models: data
 	$(VENV)/bin/dlmpc-train all --data-dir data --models-dir models
 
+# ruff, then the import contracts of .importlinter (the layers of docs/architecture.md).
 lint: $(STAMP)
 	$(VENV)/bin/ruff check dlmpc_ros test bench
+	$(VENV)/bin/lint-imports
 
 clean:
 	rm -rf $(VENV) $(OUT) build *.egg-info

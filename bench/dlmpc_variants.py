@@ -1,8 +1,9 @@
 """Closed-loop ablation of DL-MPC settings: each variant on every scenario and seed.
 
 A variant is a set of :class:`DLMPCConfig` overrides; every run goes through
-``dlmpc-evaluate --fast``'s own run (same scenarios, initial angles, servo limit and
-models), so a variant with no overrides reproduces the DL-MPC column of ``make evaluate``.
+``dlmpc-evaluate --fast``'s own run (:func:`dlmpc_ros.evaluation.runs.run_fast`: same
+scenario presets, initial angles, servo limit and models), so a variant with no overrides
+reproduces the DL-MPC column of ``make evaluate``.
 
 Usage::
 
@@ -34,23 +35,25 @@ SCENARIOS = ('sinusoidal', 'chirp', 'random_walk', 'steps')
 
 def run_one(job: tuple[str, dict, str, int, int, str]) -> dict:
     """One closed-loop run: (variant, overrides, scenario, seed, round trips, models)."""
-    import tempfile
-
-    from dlmpc_ros.cli.evaluate import parse_args
-    from dlmpc_ros.cli.evaluate import run_one as evaluate_run
+    from dlmpc_ros.control.dlmpc import DLMPCConfig
+    from dlmpc_ros.control.factory import load_dlmpc
+    from dlmpc_ros.control.limits import AngleLimits
     from dlmpc_ros.control.step import MODES
+    from dlmpc_ros.control.tracking import TrackingConfig
     from dlmpc_ros.evaluation.metrics import run_metrics
-    from dlmpc_ros.learning.baselines import load_baselines
+    from dlmpc_ros.evaluation.runs import RunSpec, run_fast
+    from dlmpc_ros.learning.tables import load_baselines
 
     name, overrides, scenario, seed, round_trips, models = job
     overrides = dict(overrides)
     noise = float(overrides.pop('measurement_noise', 0.0))  # a run setting, not DLMPCConfig
-    with tempfile.TemporaryDirectory() as scratch:
-        args = parse_args(['--fast', '--scenario', scenario, '--seed', str(seed),
-                           '--round-trips', str(round_trips), '--models-dir', models,
-                           '--measurement-noise', str(noise), '--out', scratch])
-        started = time.monotonic()
-        record = evaluate_run(args, scenario, 'dlmpc', seed, Path(scratch), overrides)
+    if isinstance(overrides.get('tracking'), dict):  # from JSON: the tracker's fields
+        overrides['tracking'] = TrackingConfig(**overrides['tracking'])
+    spec = RunSpec(scenario, seed, 'dlmpc', round_trips=round_trips, measurement_noise=noise)
+    controller = load_dlmpc(Path(models), DLMPCConfig(limits=AngleLimits(max_step=spec.max_step),
+                                                      **overrides))
+    started = time.monotonic()
+    record = run_fast(spec, Path(models), controller)
     metrics = run_metrics(record, load_baselines(Path(models) / 'oracle.npz'))
     modes = np.asarray(record.mode)
     return {'variant': name, 'scenario': scenario, 'seed': seed,

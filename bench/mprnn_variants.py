@@ -1,8 +1,9 @@
-"""Ablation of the MP-RNN predictor: each variant trained by ``dlmpc-train mprnn``'s own stage.
+"""Ablation of the MP-RNN predictor: each variant trained by ``dlmpc-train mprnn``'s own code.
 
 A variant overrides fields of :class:`~dlmpc_ros.learning.mprnn.MPRNNConfig` (``model``) and
-of the stage's :class:`~dlmpc_ros.learning.mprnn.TrainConfig` (``train``); a variant with
-no overrides reproduces the shipped training. Nothing is saved into the models directory
+of the stage's :class:`~dlmpc_ros.training.predictor.TrainConfig` (``train``, over
+:data:`~dlmpc_ros.training.stages.mprnn.FULL`); a variant with no overrides reproduces the
+shipped training. Nothing is saved into the models directory
 (its VAE and K-map are read). Variants are chosen on the validation lanes (the first half
 of the held-out trajectories); the test lanes are the second half, as in the model card.
 
@@ -43,20 +44,28 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--out', type=Path, required=True)
     args = p.parse_args(argv)
 
-    from dlmpc_ros.learning.pipeline import Paths
-    from dlmpc_ros.learning.pipeline_mprnn import train_mprnn_stage
+    from dlmpc_ros.learning.kmap import load_kmap
+    from dlmpc_ros.learning.mprnn import MPRNNConfig
+    from dlmpc_ros.learning.vae import load_vae
+    from dlmpc_ros.training.predictor import TrainConfig
+    from dlmpc_ros.training.stages.mprnn import FULL, predictor_data, train_predictor
+    from dlmpc_ros.training.workspace import Workspace
 
     variants = json.loads(args.variants.read_text())
-    paths = Paths(args.data_dir, args.models_dir)
+    ws = Workspace(args.data_dir, args.models_dir)
+    vae, _ = load_vae(ws.model('vae'))
+    kmap, _ = load_kmap(ws.model('kmap'))
     results = json.loads(args.out.read_text()) if args.out.exists() else {}
     for name, overrides in variants.items():
         if args.only and name not in args.only:
             continue
         started = time.monotonic()
-        metrics = train_mprnn_stage(paths, args.seed, model_overrides=overrides.get('model'),
-                                    train_overrides=overrides.get('train'), save=False,
-                                    extra_trajectories=tuple(
-                                        Path(d) for d in overrides.get('extra_trajectories', ())))
+        data = predictor_data(ws, vae, tuple(Path(d) for d in
+                                             overrides.get('extra_trajectories', ())))
+        config = MPRNNConfig(**{'norm': vae.config.normalizer, **overrides.get('model', {})})
+        train_cfg = TrainConfig(**{**FULL.__dict__, 'seed': args.seed,
+                                   **overrides.get('train', {})})
+        _, metrics = train_predictor(data, kmap, config, train_cfg, args.seed)
         results[name] = {'overrides': overrides, 'wall_seconds': round(
             time.monotonic() - started, 1), **metrics}
         args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -136,15 +136,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--out', type=Path, required=True)
     args = p.parse_args(argv)
 
-    from dlmpc_ros.learning.mprnn import MPRNNConfig, WindowDataset
-    from dlmpc_ros.learning.pipeline import Paths, load_vae, measured_array
-    from dlmpc_ros.learning.pipeline_mprnn import split_held_out, surrogate_series
-    from dlmpc_ros.learning.trajectories import load_trajectories
+    from dlmpc_ros.learning.features import measurements
+    from dlmpc_ros.learning.mprnn import MPRNNConfig
+    from dlmpc_ros.learning.vae import load_vae
+    from dlmpc_ros.training.stages.mprnn import split_held_out, surrogate_series
+    from dlmpc_ros.training.trajectories import load_trajectories
+    from dlmpc_ros.training.windows import WindowDataset
+    from dlmpc_ros.training.workspace import Workspace
 
-    paths = Paths(args.data_dir, args.models_dir)
-    traj = load_trajectories(paths.trajectories)
-    vae, _ = load_vae(paths.model('vae'))
-    measured = measured_array(traj)
+    ws = Workspace(args.data_dir, args.models_dir)
+    traj = load_trajectories(ws.trajectories)
+    vae, _ = load_vae(ws.model('vae'))
+    measured = measurements(traj)
     val_lanes, test_lanes = split_held_out(traj['held_out'])  # as in the MP-RNN stage
     config = MPRNNConfig(norm=vae.config.normalizer)
     train_lanes = np.flatnonzero(~traj['held_out'])
@@ -154,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
     for directory in args.extra_trajectories:
         extra = load_trajectories(directory)
         lanes = ~extra['held_out']
-        parts['train'].append((measured_array(extra)[lanes], extra['K'][lanes]))
+        parts['train'].append((measurements(extra)[lanes], extra['K'][lanes]))
     sets, k_of = {}, {}
     for name, pieces in parts.items():
         lane_measured = np.concatenate([m for m, _ in pieces])

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dlmpc_ros.ros_csv import decisions_path
+from dlmpc_ros.recording.run_csv import decisions_path
 
 NODES = ('laser_sim', 'drift_injector', 'vae_estimator', 'mpc_controller')
 HERE = Path(__file__).resolve().parent

@@ -26,22 +26,17 @@ import numpy as np
 
 from dlmpc_ros.control.esc import ESCConfig, ESCController
 from dlmpc_ros.core.cavity import Cavity
-from dlmpc_ros.core.drift import make_scenario
 from dlmpc_ros.evaluation.closed_loop import random_initial_angles, run_closed_loop
 from dlmpc_ros.evaluation.metrics import run_metrics
+from dlmpc_ros.evaluation.presets import CHECK_CASES, preset_scenario
 from dlmpc_ros.evaluation.record import RunRecord
-from dlmpc_ros.learning.oracle import load_envelope
+from dlmpc_ros.learning.tables import load_envelope
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENARIOS = {
-    'sinusoidal': ('sinusoidal', {'amplitude': 0.25, 'period': 10000.0}),
-    'random_walk_11': ('random_walk', {'seed': 11}),
-    'random_walk_12': ('random_walk', {'seed': 12}),
-    'chirp': ('chirp', {}),
-    'steps': ('steps', {'times': [5000, 10000, 15000], 'values': [0.2, -0.2, 0.1]}),
-}
+#: The tuning objective's scenarios: the check set of the presets (label -> preset, seed).
+SCENARIOS = CHECK_CASES
 #: Extra scenarios for quick looks (not part of the tuning objective).
-EXTRA = {'constant': ('constant', {'offset': 0.0})}
+EXTRA = {'constant': ('constant', 1)}
 PERIOD = 10
 KEYS = ('oracle_ratio', 'locked_fraction', 'acquisition_round_trips', 'mean_O')
 
@@ -96,10 +91,10 @@ def tune(args: argparse.Namespace) -> None:
                      for key, v in overrides.items()}
         cfg = replace(ESCConfig(), **overrides)
         for name in names:
-            kind, params = table[name]
+            preset, scenario_seed = table[name]
             for seed in args.seeds:
                 configs.append(cfg)
-                scenarios.append(make_scenario(kind, **params))
+                scenarios.append(preset_scenario(preset, scenario_seed))
                 starts.append(random_initial_angles(seed))
                 tags.append((label, name, seed))
     started = time.perf_counter()
@@ -131,10 +126,10 @@ def report(args: argparse.Namespace) -> None:
     cfg = ESCConfig()
     runs = {}
     started = time.perf_counter()
-    for name in SCENARIOS:
-        kind, params = SCENARIOS[name]
+    for name, (preset, scenario_seed) in SCENARIOS.items():
         for seed in args.seeds:
-            record = run_closed_loop(ESCController(config=cfg), make_scenario(kind, **params),
+            record = run_closed_loop(ESCController(config=cfg),
+                                     preset_scenario(preset, scenario_seed),
                                      args.round_trips,
                                      initial_angles=random_initial_angles(seed))
             mt = run_metrics(record, envelope)
@@ -142,8 +137,8 @@ def report(args: argparse.Namespace) -> None:
                                           (*KEYS, 'step_latency_ms_median')}
             print(name, seed, {key: mt[key] for key in KEYS}, flush=True)
     out = {'settings': asdict(cfg), 'round_trips': args.round_trips, 'period': PERIOD,
-           'seeds': args.seeds, 'scenarios': {n: {'kind': k, **p}
-                                              for n, (k, p) in SCENARIOS.items()},
+           'seeds': args.seeds, 'scenarios': {n: {'preset': preset, 'seed': seed}
+                                              for n, (preset, seed) in SCENARIOS.items()},
            'summary': summarize(list(runs.values())), 'runs': runs,
            'wall_s': time.perf_counter() - started}
     if args.tried and Path(args.tried).exists():

@@ -92,6 +92,15 @@ def state_fault(data: Sequence[float]) -> str | None:
     return fault
 
 
+def usable_state(data: Sequence[float], warn: RateLimitedLog) -> bool:
+    """Whether a /laser/state vector can be used; a malformed one is reported through
+    ``warn`` (rate-limited, with what is wrong) and is to be dropped."""
+    fault = state_fault(data)
+    if fault is not None:
+        warn.dropped(TOPIC_STATE, fault)
+    return fault is None
+
+
 class RateLimitedLog:
     """Log each distinct key (the nodes use the topic of a dropped message) at most once per
     ``period`` seconds, with a count of the messages suppressed in between.

@@ -9,7 +9,7 @@ import numpy as np
 
 def load_run_csv(path: Path) -> dict[str, np.ndarray]:
     """Columns of a bringup CSV (``round_trip, E, M, O, ..., K``) as arrays."""
-    from dlmpc_ros.ros_csv import read_run_csv
+    from dlmpc_ros.recording.run_csv import read_run_csv
     return read_run_csv(path)
 
 

@@ -1,6 +1,7 @@
 import math
 
-from dlmpc_ros.interfaces import ANGLE_FIELDS, RateLimitedLog, vector_fault
+from dlmpc_ros.interfaces import (ANGLE_FIELDS, STATE_FIELDS, RateLimitedLog, usable_state,
+                                  vector_fault)
 
 
 def test_vector_fault_names_the_problem():
@@ -20,3 +21,13 @@ def test_rate_limited_log_counts_suppressed_lines():
     now[0] = 1.5
     assert log('a', 'later')
     assert lines == ['first', 'other key', 'later (1 similar messages suppressed)']
+
+
+def test_usable_state_drops_a_malformed_state_with_one_line_that_says_why():
+    lines = []
+    warn = RateLimitedLog(lines.append, clock=lambda: 0.0)
+    good = [10.0, 3.0, 30.0, 0.1, 9.0, 1.0, 0.0, 0.0, 0.0, 0.0]
+    assert len(good) == len(STATE_FIELDS) and usable_state(good, warn) and not lines
+    assert not usable_state(good[:-1], warn)
+    assert not usable_state([10.5, *good[1:]], warn)  # round trip is not a count
+    assert len(lines) == 1 and '/laser/state' in lines[0] and 'expected 10 values' in lines[0]

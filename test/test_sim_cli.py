@@ -20,6 +20,15 @@ def test_dlmpc_sim_until_steady(capsys):
     assert lines[-2]['round_trip'] == lines[-1]['round_trips']
 
 
+def test_dlmpc_sim_runs_every_requested_round_trip_past_steady_state(capsys):
+    # this laser is steady after a few hundred round trips; without --until-steady the
+    # command still prints all of them (it used to stop at the first steady one)
+    assert main(['--round-trips', '1000']) == 0
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert [row['round_trip'] for row in lines[:-1]] == list(range(1, 1001))
+    assert lines[-1] == {'converged': True, 'round_trips': 1000, 'finite': True}
+
+
 def test_dlmpc_sim_rejects_bad_parameters(capsys):
     with pytest.raises(SystemExit) as err:
         main(['--points', '4'])

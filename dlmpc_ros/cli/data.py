@@ -17,10 +17,11 @@ import time
 from pathlib import Path
 
 from dlmpc_ros.core.config import CavityConfig
-from dlmpc_ros.learning.oracle import OracleConfig, generate_oracle, load_envelope
-from dlmpc_ros.learning.pipeline import Paths
-from dlmpc_ros.learning.sweep import SweepConfig, generate_sweep
-from dlmpc_ros.learning.trajectories import TrajectoryConfig, generate_trajectories
+from dlmpc_ros.learning.tables import load_envelope
+from dlmpc_ros.training.envelope import OracleConfig, generate_oracle
+from dlmpc_ros.training.sweep import SweepConfig, generate_sweep
+from dlmpc_ros.training.trajectories import TrajectoryConfig, generate_trajectories
+from dlmpc_ros.training.workspace import Workspace
 
 QUICK_SWEEP = SweepConfig(sobol_sets=32, refine_sets=16, k_points=7, batch=48,
                           chains_per_shard=16, first_cap=200, cap=60)
@@ -40,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--quick', action='store_true', help='tiny settings for tests')
     p.add_argument('--no-progress', action='store_true')
     args = p.parse_args(argv)
-    paths = Paths(data_dir=args.data_dir)
+    ws = Workspace(data_dir=args.data_dir)
     cavity = CavityConfig()
     show = not args.no_progress
     report = {}
@@ -49,21 +50,21 @@ def main(argv: list[str] | None = None) -> int:
         if args.stage in ('all', 'sweep'):
             cfg = QUICK_SWEEP if args.quick else SweepConfig()
             cfg = SweepConfig(**{**cfg.to_dict(), 'seed': args.seed})
-            report['sweep'] = generate_sweep(paths.sweep, cfg, cavity, show)
+            report['sweep'] = generate_sweep(ws.sweep, cfg, cavity, show)
         if args.stage in ('all', 'oracle'):
             cfg = QUICK_ORACLE if args.quick else OracleConfig()
-            report['oracle'] = generate_oracle(paths.sweep, paths.oracle, cavity, cfg, show)
+            report['oracle'] = generate_oracle(ws.sweep, ws.oracle, cavity, cfg, show)
         if args.stage in ('all', 'trajectories'):
             cfg = QUICK_TRAJECTORIES if args.quick else TrajectoryConfig()
             cfg = TrajectoryConfig(**{**cfg.to_dict(), 'seed': args.seed})
-            envelope = load_envelope(paths.oracle)
+            envelope = load_envelope(ws.oracle)
             report['trajectories'] = generate_trajectories(
-                paths.trajectories, envelope, cavity, cfg, show)
+                ws.trajectories, envelope, cavity, cfg, show)
             extra = TrajectoryConfig(**{
                 **cfg.to_dict(), 'test_lasers': 0, 'seed': args.seed + 1,
                 'train_lasers': QUICK_EXTRA_LANES if args.quick else EXTRA_LANES})
             report['trajectories_extra'] = generate_trajectories(
-                paths.extra_trajectories, envelope, cavity, extra, show)
+                ws.extra_trajectories, envelope, cavity, extra, show)
     except (FileNotFoundError, ValueError) as err:
         print(f'dlmpc-data: {err}', file=sys.stderr)
         return 2

@@ -17,35 +17,23 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
-from dlmpc_ros.control.factory import CONTROLLERS, load_dlmpc, load_estimator, make_baseline
+from dlmpc_ros.control.factory import CONTROLLERS
 from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.core.drift import DEFAULTS, make_scenario, parse_settings
-from dlmpc_ros.evaluation.closed_loop import random_initial_angles, run_closed_loop
-from dlmpc_ros.evaluation.figures import plot_surrogate, plot_tracking, surrogate_correlation
-from dlmpc_ros.evaluation.metrics import run_metrics
-from dlmpc_ros.evaluation.record import RunRecord
+from dlmpc_ros.core.drift import DEFAULTS, parse_settings
+from dlmpc_ros.evaluation.figures import plot_surrogate, plot_tracking
+from dlmpc_ros.evaluation.presets import SCENARIOS, preset_settings
+from dlmpc_ros.evaluation.report import measure, summary_line, write_summary
+from dlmpc_ros.evaluation.runs import RunSpec, run_spec
 from dlmpc_ros.learning.checkpoint import ModelFileError
+from dlmpc_ros.learning.tables import load_baselines
 from dlmpc_ros.paths import models_dir as default_models_dir
-
-SCENARIOS = ('sinusoidal', 'chirp', 'random_walk', 'steps', 'constant')
-#: Evaluation settings of each scenario (K within [-0.3, 0.3]); --scenario-param overrides.
-PRESETS: dict[str, dict[str, object]] = {
-    'sinusoidal': {'amplitude': 0.25, 'period': 10000.0},
-    'chirp': {},
-    'random_walk': {'sigma': 0.1, 'correlation_time': 2000.0},
-    'steps': {'times': [5000.0, 10000.0, 15000.0], 'values': [0.2, -0.2, 0.1]},
-    'constant': {'offset': 0.1},
-}
-TABLE_KEYS = ('oracle_ratio', 'oracle_controller_ratio', 'locked_fraction',
-              'acquisition_round_trips', 'recovery_round_trips_max', 'step_latency_ms_median',
-              'step_latency_ms_p99', 'track_estimate_abs_r')
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -94,13 +82,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         p.error('--round-trips and --period must be >= 1')
     try:
         overrides = parse_settings(args.scenario_param)
-        args.settings = {}
-        for name in args.scenario:
-            settings = {**PRESETS[name], **{k: v for k, v in overrides.items()
-                                            if k in DEFAULTS[name]}}
-            make_scenario(name, **{**settings, **({'seed': 1} if name == 'random_walk'
-                                                  else {})})
-            args.settings[name] = settings
+        args.settings = {name: preset_settings(name, overrides) for name in args.scenario}
         unused = set(overrides) - {k for name in args.scenario for k in DEFAULTS[name]}
         if unused:
             raise ValueError(f'no chosen scenario takes {sorted(unused)}')
@@ -110,93 +92,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
-def _setting_strings(settings: dict[str, object]) -> list[str]:
-    out = []
-    for key, value in settings.items():
-        if isinstance(value, (list, tuple)):
-            value = ','.join(repr(float(v)) for v in value)
-        out.append(f'{key}={value}')
-    return out
-
-
-def run_one(args: argparse.Namespace, scenario_name: str, controller_name: str, seed: int,
-            run_dir: Path, dlmpc_overrides: dict | None = None) -> RunRecord:
-    """One closed-loop run; ``dlmpc_overrides`` (fast mode only) are DLMPCConfig fields
-    that replace the defaults, for ablations (``bench/dlmpc_variants.py``)."""
-    if dlmpc_overrides and not args.fast:
-        raise ValueError('DL-MPC overrides apply to fast mode only')
-    settings = dict(args.settings[scenario_name])
-    if scenario_name == 'random_walk':
-        settings.setdefault('seed', seed)
-    initial = random_initial_angles(seed)
-    meta = {'scenario': scenario_name, 'settings': settings, 'controller': controller_name,
-            'seed': seed, 'round_trips': args.round_trips, 'period': args.period,
-            'mode': 'fast' if args.fast else ('graph-free-run' if args.free_run
-                                              else 'graph-lockstep'),
-            'initial_angles': initial.tolist(),
-            'measurement_noise': args.measurement_noise}
-    if not args.fast:
-        from dlmpc_ros.evaluation.graph_run import run_graph
-        settings_args = _setting_strings(settings)
-        return run_graph(run_dir, controller_name, scenario_name, settings_args,
-                         args.round_trips, args.period, initial, args.domain_id,
-                         lockstep=not args.free_run, models_dir=args.models_dir, meta=meta)
-    from tqdm import tqdm
-
-    scenario = make_scenario(scenario_name, **settings)
-    limits = AngleLimits(max_step=args.max_step)
-    estimator = None
-    if controller_name == 'dlmpc':
-        from dlmpc_ros.control.dlmpc import DLMPCConfig
-        from dlmpc_ros.control.tracking import TrackingConfig
-        overrides = dict(dlmpc_overrides or {})
-        if isinstance(overrides.get('tracking'), dict):  # from JSON: the tracker's fields
-            overrides['tracking'] = TrackingConfig(**overrides['tracking'])
-        controller = load_dlmpc(args.models_dir, DLMPCConfig(limits=limits, **overrides))
-        estimator = load_estimator(args.models_dir)
-    else:
-        controller = make_baseline(controller_name, args.models_dir, limits,
-                                   initial_k=float(scenario(1)))
-    with tqdm(total=args.round_trips, unit='RT', desc=f'{scenario_name}/{controller_name}',
-              leave=False, mininterval=1.0) as bar:
-        def progress(done: int) -> None:
-            bar.update(done - bar.n)
-        return run_closed_loop(controller, scenario, args.round_trips, args.period, initial,
-                               estimator=estimator, meta=meta, progress=progress,
-                               measurement_noise=args.measurement_noise, noise_seed=seed)
-
-
-def markdown_table(rows: list[dict]) -> str:
-    head = ['scenario', 'seed', 'controller', *TABLE_KEYS]
-    lines = ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
-    for row in rows:
-        cells = [row['scenario'], str(row['seed']), row['controller']]
-        for key in TABLE_KEYS:
-            value = row['metrics'].get(key)
-            cells.append('-' if value is None else (f'{value:.3f}' if isinstance(value, float)
-                                                    else str(value)))
-        lines.append('| ' + ' | '.join(cells) + ' |')
-    return '\n'.join(lines) + '\n'
-
-
-def _summary_line(metrics: dict) -> str:
-    def text(key: str, form: str) -> str:
-        value = metrics.get(key)
-        return 'n/a' if value is None else format(value, form)
-    return (f"oracle ratio {text('oracle_ratio', '.3f')}, locked "
-            f"{text('locked_fraction', '.3f')}, acquisition "
-            f"{text('acquisition_round_trips', 'd')}, latency median "
-            f"{text('step_latency_ms_median', '.2f')} ms")
-
-
-def _measure(record: RunRecord, envelope: dict, run_dir: Path, **extra) -> dict:
-    """The run's metrics (plus ``extra``), saved with its record in ``run_dir``."""
-    metrics = {**run_metrics(record, envelope), **extra,
-               'surrogate_abs_r': surrogate_correlation(record),
-               'track_estimate_abs_r': surrogate_correlation(record, tracking=True)}
-    record.save(run_dir / 'record.npz')
-    (run_dir / 'metrics.json').write_text(json.dumps({**record.meta, **metrics}, indent=2))
-    return metrics
+def run_specs(args: argparse.Namespace) -> list[RunSpec]:
+    """The runs the arguments ask for: scenarios x seeds x controllers."""
+    mode = 'fast' if args.fast else ('graph-free-run' if args.free_run else 'graph-lockstep')
+    return [RunSpec(scenario, seed, controller, args.settings[scenario], args.round_trips,
+                    args.period, args.max_step, args.measurement_noise, mode)
+            for scenario, seed, controller in itertools.product(args.scenario, args.seed,
+                                                                args.controller)]
 
 
 def evaluate_bags(args: argparse.Namespace, envelope: dict) -> int:
@@ -216,7 +118,7 @@ def evaluate_bags(args: argparse.Namespace, envelope: dict) -> int:
         except (BagError, OSError, ValueError) as err:
             print(f'dlmpc-evaluate: {bag}: {err}', file=sys.stderr)
             return 1
-        metrics = _measure(record, envelope, run_dir)
+        metrics = measure(record, envelope, run_dir)
         runs.append({'scenario': 'bag', 'seed': '-', 'controller': label, 'metrics': metrics,
                      'meta': record.meta})
         if report.rows_with_k:
@@ -226,64 +128,13 @@ def evaluate_bags(args: argparse.Namespace, envelope: dict) -> int:
                 plot_surrogate(record, f'bag {label}: VAE surrogate',
                                args.out / 'figures' / f'{label}-surrogate.png')
         print(f'[{i}/{len(args.bag)}] {bag}: {report.rows} round trips, {report.decisions} '
-              f'decisions: {_summary_line(metrics)}', flush=True)
-    _write_summary(args.out, runs)
+              f'decisions: {summary_line(metrics)}', flush=True)
+    write_summary(args.out, runs)
     return 0
-
-
-def add_oracle_controller_ratio(runs: list[dict]) -> None:
-    """Add ``oracle_controller_ratio``: mean O over the mean O of the ``oracle``
-    controller's run on the same scenario and seed (when the oracle ran too). The envelope
-    O*(K) is the point-wise best over branches, which no controller holds; the oracle
-    controller's branch-continuous path is the best reached in closed loop."""
-    oracle = {(r['scenario'], r['seed']): r['metrics']['mean_O'] for r in runs
-              if r['controller'] == 'oracle'}
-    for run in runs:
-        reference = oracle.get((run['scenario'], run['seed']))
-        mean_o = run['metrics'].get('mean_O')
-        if reference and mean_o is not None:
-            run['metrics']['oracle_controller_ratio'] = mean_o / reference
-
-
-def seed_summary(runs: list[dict]) -> str:
-    """Markdown table of oracle_ratio per scenario (rows) and controller (columns): the
-    mean over seeds and, with several seeds, the range."""
-    scenarios = list(dict.fromkeys(r['scenario'] for r in runs))
-    controllers = list(dict.fromkeys(r['controller'] for r in runs))
-    lines = ['| scenario | ' + ' | '.join(controllers) + ' |',
-             '|---|' + '---|' * len(controllers)]
-    for scenario in scenarios:
-        cells = []
-        for controller in controllers:
-            values = [r['metrics']['oracle_ratio'] for r in runs
-                      if r['scenario'] == scenario and r['controller'] == controller
-                      and r['metrics'].get('oracle_ratio') is not None]
-            if not values:
-                cells.append('-')
-            elif len(values) == 1:
-                cells.append(f'{values[0]:.3f}')
-            else:
-                cells.append(f'{np.mean(values):.3f} ({min(values):.3f}-{max(values):.3f})')
-        lines.append(f'| {scenario} | ' + ' | '.join(cells) + ' |')
-    return '\n'.join(lines) + '\n'
-
-
-def _write_summary(out: Path, runs: list[dict]) -> None:
-    add_oracle_controller_ratio(runs)
-    summary: dict = {'runs': runs}
-    if len(runs) == 1:
-        summary.update(runs[0]['metrics'])
-    (out / 'metrics.json').write_text(json.dumps(summary, indent=2))
-    seeds = len({r['seed'] for r in runs})
-    (out / 'table.md').write_text(
-        f'oracle_ratio (mean O / mean O*(K)), mean over {seeds} seed(s)'
-        + (' (min-max)' if seeds > 1 else '') + ':\n\n' + seed_summary(runs)
-        + '\nEvery run:\n\n' + markdown_table(runs))
 
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    from dlmpc_ros.learning.baselines import load_baselines
     try:
         envelope = load_baselines(args.models_dir / 'oracle.npz')
     except (ModelFileError, FileNotFoundError) as err:
@@ -296,24 +147,28 @@ def main(argv: list[str] | None = None) -> int:
             print(f'dlmpc-evaluate: wrote {args.out}/metrics.json, table.md and figures/')
         return code
     runs, records = [], {}
-    combos = list(itertools.product(args.scenario, args.seed, args.controller))
-    for i, (scenario_name, seed, controller_name) in enumerate(combos, 1):
-        run_dir = args.out / f'{scenario_name}-s{seed}-{controller_name}'
+    specs = run_specs(args)
+    for i, spec in enumerate(specs, 1):
+        run_dir = args.out / f'{spec.scenario}-s{spec.seed}-{spec.controller}'
         started = time.monotonic()
         try:
-            record = run_one(args, scenario_name, controller_name, seed, run_dir)
+            with tqdm(total=spec.round_trips, unit='RT', desc=f'{spec.scenario}/'
+                      f'{spec.controller}', leave=False, mininterval=1.0,
+                      disable=not args.fast) as bar:
+                record = run_spec(spec, args.models_dir, run_dir, args.domain_id,
+                                  progress=lambda done: bar.update(done - bar.n))
         except (ModelFileError, FileNotFoundError, RuntimeError, ValueError) as err:
-            print(f'dlmpc-evaluate: {scenario_name}/{controller_name} failed: {err}',
+            print(f'dlmpc-evaluate: {spec.scenario}/{spec.controller} failed: {err}',
                   file=sys.stderr)
             return 1
         wall = time.monotonic() - started
-        metrics = _measure(record, envelope, run_dir, wall_seconds=round(wall, 2))
-        runs.append({'scenario': scenario_name, 'seed': seed, 'controller': controller_name,
-                     'metrics': metrics, 'meta': record.meta})
-        records[(scenario_name, seed, controller_name)] = record
-        print(f'[{i}/{len(combos)}] {scenario_name} seed {seed} {controller_name}: '
-              f'{_summary_line(metrics)} ({wall:.0f} s)', flush=True)
-    _write_summary(args.out, runs)
+        metrics = measure(record, envelope, run_dir, wall_seconds=round(wall, 2))
+        runs.append({'scenario': spec.scenario, 'seed': spec.seed,
+                     'controller': spec.controller, 'metrics': metrics, 'meta': record.meta})
+        records[(spec.scenario, spec.seed, spec.controller)] = record
+        print(f'[{i}/{len(specs)}] {spec.scenario} seed {spec.seed} {spec.controller}: '
+              f'{summary_line(metrics)} ({wall:.0f} s)', flush=True)
+    write_summary(args.out, runs)
     for scenario_name, seed in itertools.product(args.scenario, args.seed):
         group = {c: records[(scenario_name, seed, c)] for c in args.controller}
         shown = 'dlmpc' if 'dlmpc' in group else args.controller[0]

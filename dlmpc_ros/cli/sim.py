@@ -34,7 +34,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument('--initial', choices=INITIAL_CONDITIONS, default='sech')
     p.add_argument('--seed', type=int, default=0, help='seed of the noise initial condition')
     p.add_argument('--until-steady', action='store_true',
-                   help='stop at the first round trip that meets the steady-state rule')
+                   help='stop at the first round trip that meets the steady-state rule '
+                        '(without it, every requested round trip runs)')
     defaults = CavityConfig()
     for f in fields(CavityConfig):
         p.add_argument('--' + f.name.replace('_', '-'), type=type(getattr(defaults, f.name)),
@@ -57,7 +58,8 @@ def main(argv: list[str] | None = None) -> int:
                     initial=args.initial, seed=args.seed)
     converged = False
     finite = True
-    while cavity.round_trip < args.round_trips and finite and not converged:
+    stop = False
+    while cavity.round_trip < args.round_trips and not stop:
         result = cavity.run(min(CHUNK, args.round_trips - cavity.round_trip))
         for i in range(result.E.shape[0]):
             row = {key: getattr(result, key)[i, 0].item() for key in KEYS}
@@ -66,10 +68,12 @@ def main(argv: list[str] | None = None) -> int:
             if not finite:
                 print(json.dumps({'round_trip': row['round_trip'],
                                   'error': 'field is no longer finite'}))
+                stop = True
                 break
             if row['round_trip'] % args.every == 0 or (converged and args.until_steady):
                 print(json.dumps(row))
             if converged and args.until_steady:
+                stop = True
                 break
         done = int(row['round_trip'])
     print(json.dumps({'converged': converged, 'round_trips': done, 'finite': finite}))

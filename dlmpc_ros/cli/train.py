@@ -19,14 +19,64 @@ import time
 from pathlib import Path
 
 from dlmpc_ros.learning.checkpoint import ModelFileError
-from dlmpc_ros.learning.pipeline import (Paths, train_kmap_stage, train_vae_stage,
-                                         write_metrics)
+from dlmpc_ros.training.workspace import Workspace
+
+STAGES = ('all', 'vae', 'kmap', 'mprnn', 'baselines', 'curve', 'check-estimator')
+
+
+def run_stages(stage: str, ws: Workspace, seed: int, quick: bool, show: bool) -> None:
+    """Run ``stage`` (or every stage for ``all``), writing each one's metrics."""
+    if stage in ('all', 'vae'):
+        from dlmpc_ros.training.stages.vae import train_vae_stage
+        metrics = train_vae_stage(ws, seed, epochs=2 if quick else 25, show_progress=show)
+        ws.write_metrics('vae', metrics)
+        print(f"vae: |r| = {metrics['abs_pearson_r_heldout']:.3f} (window "
+              f"{metrics['chosen_window']})", flush=True)
+    if stage in ('all', 'kmap'):
+        from dlmpc_ros.training.stages.kmap import train_kmap_stage
+        metrics = train_kmap_stage(ws, seed, steps=200 if quick else 3000)
+        ws.write_metrics('kmap', metrics)
+        print(f"kmap: O/O* = {metrics['oracle_ratio_test_k']:.3f} (test K)", flush=True)
+    if stage in ('all', 'mprnn'):
+        from dlmpc_ros.training.stages.mprnn import train_mprnn_stage
+        metrics = train_mprnn_stage(ws, seed, quick=quick, show_progress=show)
+        ws.write_metrics('mprnn', metrics)
+        print(f"mprnn: horizon-{len(metrics['rmse_O_model'])} O error / persistence = "
+              f"{metrics['rmse_O_model'][-1] / metrics['rmse_O_persistence'][-1]:.3f}",
+              flush=True)
+    if stage in ('all', 'baselines'):
+        from dlmpc_ros.training.stages.baselines import train_baselines_stage
+        metrics = train_baselines_stage(ws, quick=quick, show_progress=show)
+        ws.write_metrics('baselines', metrics)
+        first = next(iter(metrics['closed_loop']))
+        ratios = {name: round(r['oracle_ratio'], 3)
+                  for name, r in metrics['closed_loop'][first].items()}
+        print(f'baselines: closed-loop O/O* on {first}: {ratios}', flush=True)
+    if stage in ('all', 'baselines', 'curve'):
+        from dlmpc_ros.training.stages.curve import train_curve_stage
+        metrics = train_curve_stage(ws.models_dir)
+        ws.write_metrics('curve', metrics)
+        print(f"curve: {metrics['points']} points, mean steady O "
+              f"{metrics['mean_objective']:.4f}", flush=True)
+
+
+def check_estimator(ws: Workspace, out: Path, quick: bool, show: bool) -> None:
+    """The identifiability study of the shipped estimator on the datasets."""
+    from dlmpc_ros.evaluation.identifiability import ProbeConfig
+    from dlmpc_ros.evaluation.identifiability import check_estimator as check
+    from dlmpc_ros.learning.vae import load_vae
+    from dlmpc_ros.training import shards
+    from dlmpc_ros.training.trajectories import load_trajectories
+
+    vae, _ = load_vae(ws.model('vae'))
+    check(vae, load_trajectories(ws.trajectories), shards.load_dataset(ws.sweep), out,
+          ProbeConfig(epochs=2 if quick else 40), show_progress=show)
+    print(f'check-estimator: report in {out}/report.md', flush=True)
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog='dlmpc-train', description=__doc__.split('\n\n')[0])
-    p.add_argument('stage', choices=('all', 'vae', 'kmap', 'mprnn', 'baselines', 'curve',
-                                     'check-estimator'))
+    p.add_argument('stage', choices=STAGES)
     p.add_argument('--data-dir', type=Path, default=Path('data'))
     p.add_argument('--models-dir', type=Path, default=Path('models'))
     p.add_argument('--seed', type=int, default=0)
@@ -35,55 +85,20 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--quick', action='store_true', help='tiny training runs for tests')
     p.add_argument('--no-progress', action='store_true')
     args = p.parse_args(argv)
-    paths = Paths(args.data_dir, args.models_dir)
+    ws = Workspace(args.data_dir, args.models_dir)
     show = not args.no_progress
     started = time.monotonic()
     try:
-        if args.stage in ('all', 'vae'):
-            metrics = train_vae_stage(paths, args.seed, epochs=2 if args.quick else 25,
-                                      show_progress=show)
-            write_metrics(paths, 'vae', metrics)
-            print(f"vae: |r| = {metrics['abs_pearson_r_heldout']:.3f} (window "
-                  f"{metrics['chosen_window']})", flush=True)
-        if args.stage in ('all', 'kmap'):
-            metrics = train_kmap_stage(paths, args.seed, steps=200 if args.quick else 3000,
-                                       show_progress=show)
-            write_metrics(paths, 'kmap', metrics)
-            print(f"kmap: O/O* = {metrics['oracle_ratio_test_k']:.3f} (test K)", flush=True)
-        if args.stage in ('all', 'mprnn'):
-            from dlmpc_ros.learning.pipeline_mprnn import train_mprnn_stage
-            metrics = train_mprnn_stage(paths, args.seed, quick=args.quick, show_progress=show,
-                                        extra_trajectories=(paths.extra_trajectories,))
-            write_metrics(paths, 'mprnn', metrics)
-            print(f"mprnn: horizon-{len(metrics['rmse_O_model'])} O error / persistence = "
-                  f"{metrics['rmse_O_model'][-1] / metrics['rmse_O_persistence'][-1]:.3f}",
-                  flush=True)
-        if args.stage in ('all', 'baselines'):
-            from dlmpc_ros.learning.baselines import train_baselines_stage
-            metrics = train_baselines_stage(paths, quick=args.quick, show_progress=show)
-            write_metrics(paths, 'baselines', metrics)
-            first = next(iter(metrics['closed_loop']))
-            ratios = {name: round(r['oracle_ratio'], 3)
-                      for name, r in metrics['closed_loop'][first].items()}
-            print(f'baselines: closed-loop O/O* on {first}: {ratios}', flush=True)
-        if args.stage in ('all', 'baselines', 'curve'):
-            from dlmpc_ros.learning.track_curve import train_curve_stage
-            metrics = train_curve_stage(paths.models_dir)
-            write_metrics(paths, 'curve', metrics)
-            print(f"curve: {metrics['points']} points, mean steady O "
-                  f"{metrics['mean_objective']:.4f}", flush=True)
         if args.stage == 'check-estimator':
-            from dlmpc_ros.learning.identifiability import ProbeConfig, check_estimator
-            check_estimator(paths, args.out, ProbeConfig(epochs=2 if args.quick else 40),
-                            show_progress=show)
-            print(f'check-estimator: report in {args.out}/report.md', flush=True)
+            check_estimator(ws, args.out, args.quick, show)
             return 0
+        run_stages(args.stage, ws, args.seed, args.quick, show)
     except (FileNotFoundError, ModelFileError, ValueError) as err:
         print(f'dlmpc-train: {err}', file=sys.stderr)
         return 2
     if args.stage != 'curve':  # the curve alone reads only models/; the card needs data/
-        from dlmpc_ros.learning.card import write_model_card
-        write_model_card(paths)
+        from dlmpc_ros.training.card import write_model_card
+        write_model_card(ws)
     print(json.dumps({'wall_seconds': round(time.monotonic() - started, 1)}))
     return 0
 

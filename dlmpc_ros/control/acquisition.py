@@ -19,6 +19,8 @@ from statistics import NormalDist
 
 import numpy as np
 
+from dlmpc_ros.core.angles import wrap_angles
+
 
 @dataclass(frozen=True)
 class AcquisitionConfig:
@@ -89,7 +91,7 @@ class LockSupervisor:
     def _scan(self, current: np.ndarray) -> np.ndarray:
         if self._target is not None:
             self._travel += 1
-            gap = (current - self._target + np.pi / 2) % np.pi - np.pi / 2  # pi-periodic
+            gap = wrap_angles(current - self._target)  # pi-periodic
             there = (np.max(np.abs(gap)) <= self.config.arrive_tolerance
                      or self._travel >= self.config.travel_periods)
             if not there:

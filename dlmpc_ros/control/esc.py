@@ -35,6 +35,7 @@ import numpy as np
 
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.step import ControlStep
+from dlmpc_ros.core.angles import wrap_angles
 
 #: Objective transforms understood by :class:`ESCConfig`.
 NORMALIZATIONS = ('none', 'log', 'mean')
@@ -219,7 +220,7 @@ class ESCController:
         move = np.clip(cfg.gain * self.gradient, -cfg.max_mean_step, cfg.max_mean_step)
         # Means: the pi-equivalent nearest to the current angles, kept inside the range.
         means = self.means + move
-        means = current + (means - current + np.pi / 2) % np.pi - np.pi / 2
+        means = current + wrap_angles(means - current)
         self.means = np.clip(means, self.limits.low, self.limits.high)
         self.periods += 1
         self._dither_sent = np.sin(self._omega * self.periods)

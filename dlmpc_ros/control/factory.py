@@ -1,21 +1,28 @@
 """Build any controller by name from the shipped model files (used by the controller
-nodes and by ``dlmpc-evaluate``, so that both run exactly the same objects).
+nodes and by the evaluation, so that both run exactly the same objects).
 
 Raises :class:`~dlmpc_ros.learning.checkpoint.ModelFileError` (missing or corrupt file,
-with the command that regenerates it) or ValueError (bad settings).
+with the command that regenerates it) or ValueError (bad settings). The torch-based
+pieces (DL-MPC, estimator) are imported when they are built, so that a baseline
+controller starts without loading torch.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dlmpc_ros.control.baselines import FixedBestController, OracleController, PassiveController
-from dlmpc_ros.control.dlmpc import DLMPCConfig, DLMPCController
-from dlmpc_ros.control.estimator import SurrogateEstimator
+from dlmpc_ros.control.esc import ESCController
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.step import Controller
+from dlmpc_ros.learning.tables import load_baselines
+
+if TYPE_CHECKING:
+    from dlmpc_ros.control.dlmpc import DLMPCConfig, DLMPCController
+    from dlmpc_ros.control.estimator import SurrogateEstimator
 
 CONTROLLERS = ('dlmpc', 'esc', 'passive', 'fixed_best', 'oracle')
 BASELINES_FILE = 'oracle.npz'
@@ -23,7 +30,8 @@ BASELINES_FILE = 'oracle.npz'
 
 def load_estimator(models_dir: Path) -> SurrogateEstimator:
     """The run-time VAE estimator from ``models_dir/vae.pt``."""
-    from dlmpc_ros.learning.pipeline import load_vae
+    from dlmpc_ros.control.estimator import SurrogateEstimator
+    from dlmpc_ros.learning.vae import load_vae
     vae, _ = load_vae(Path(models_dir) / 'vae.pt')
     return SurrogateEstimator(vae)
 
@@ -31,10 +39,11 @@ def load_estimator(models_dir: Path) -> SurrogateEstimator:
 def load_dlmpc(models_dir: Path, config: DLMPCConfig | None = None) -> DLMPCController:
     """The DL-MPC controller from ``models_dir/{kmap,mprnn}.pt`` and, unless tracking is
     off, ``models_dir/track_curve.npz`` (no file holds the true K of a run)."""
+    from dlmpc_ros.control.dlmpc import DLMPCConfig, DLMPCController
     from dlmpc_ros.learning.checkpoint import ModelFileError
+    from dlmpc_ros.learning.curve import FILE_NAME, load_curve
+    from dlmpc_ros.learning.kmap import load_kmap
     from dlmpc_ros.learning.mprnn import load_mprnn
-    from dlmpc_ros.learning.pipeline import load_kmap
-    from dlmpc_ros.learning.track_curve import FILE_NAME, load_curve
     config = config or DLMPCConfig()
     kmap, payload = load_kmap(Path(models_dir) / 'kmap.pt')
     target = payload['metrics'].get('subset_mean_O')
@@ -66,9 +75,9 @@ def make_baseline(name: str, models_dir: Path, limits: AngleLimits | None = None
     ``initial_k``), ``fixed_best`` or ``oracle``."""
     limits = limits or AngleLimits()
     if name == 'esc':
-        from dlmpc_ros.control.esc import ESCController
         return ESCController(limits=limits)
-    from dlmpc_ros.learning.baselines import load_baselines
+    if name not in CONTROLLERS[2:]:
+        raise ValueError(f'unknown baseline {name!r}; choose one of {CONTROLLERS[1:]}')
     baselines = load_baselines(Path(models_dir) / BASELINES_FILE)
     if name == 'passive':
         if angles is None:
@@ -78,6 +87,15 @@ def make_baseline(name: str, models_dir: Path, limits: AngleLimits | None = None
         return PassiveController(angles, limits)
     if name == 'fixed_best':
         return FixedBestController(baselines['fixed_best_angles'], limits)
-    if name == 'oracle':
-        return OracleController(*oracle_table(baselines), limits)
-    raise ValueError(f'unknown baseline {name!r}; choose one of {CONTROLLERS[1:]}')
+    return OracleController(*oracle_table(baselines), limits)
+
+
+def make_controller(name: str, models_dir: Path, limits: AngleLimits | None = None,
+                    initial_k: float | None = None,
+                    dlmpc_config: DLMPCConfig | None = None) -> Controller:
+    """Any controller of :data:`CONTROLLERS`: the DL-MPC with ``dlmpc_config`` (default
+    settings within ``limits``) or a baseline (:func:`make_baseline`)."""
+    if name == 'dlmpc':
+        from dlmpc_ros.control.dlmpc import DLMPCConfig
+        return load_dlmpc(models_dir, dlmpc_config or DLMPCConfig(limits=limits or AngleLimits()))
+    return make_baseline(name, models_dir, limits, initial_k=initial_k)

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dlmpc_ros.learning.curve import check_curve
+
 
 @dataclass(frozen=True)
 class TrackingConfig:
@@ -80,25 +82,6 @@ class TrackingConfig:
                 or min(self.survey_patience, self.survey_dwell, self.survey_cooldown) < 1:
             raise ValueError('survey_ratio must be in (0, 1], survey_spacing > 0 and the '
                              'survey periods >= 1')
-
-
-def check_curve(grid: np.ndarray, angles: np.ndarray, expected: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """A tracking curve as float arrays, checked: ``grid`` (n,) increasing, n >= 2,
-    ``angles`` (n, 4) finite [rad], ``expected`` (n,) finite steady O or None.
-
-    Raises ValueError saying what is wrong."""
-    grid, angles = np.asarray(grid, float), np.asarray(angles, float)
-    if grid.ndim != 1 or grid.size < 2 or angles.shape != (grid.size, 4) \
-            or not np.all(np.diff(grid) > 0) or not np.all(np.isfinite(angles)):
-        raise ValueError('a tracking curve needs an increasing grid (n >= 2) and finite '
-                         f'(n, 4) angles; got {grid.shape} and {angles.shape}')
-    if expected is not None:
-        expected = np.asarray(expected, float)
-        if expected.shape != grid.shape or not np.all(np.isfinite(expected)):
-            raise ValueError(f'the expected O {expected.shape} of a tracking curve must be '
-                             f'finite and fit its grid {grid.shape}')
-    return grid, angles, expected
 
 
 class CurveTracker:

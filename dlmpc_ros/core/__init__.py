@@ -1,1 +1,2 @@
-"""Physics, drift and (later) learning/control core of dlmpc_ros; never imports rclpy."""
+"""Physics and drift (numpy, numba; no torch, no rclpy): the cavity model and its solver,
+the drift scenarios, angle arithmetic and the checks shared by settings dataclasses."""

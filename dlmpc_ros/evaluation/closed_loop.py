@@ -4,6 +4,7 @@ stepped in the same order as the node graph in lockstep.
 Round trip r runs with K = scenario(r) and the angles commanded after round trip r - 1.
 After every round trip r with r % period == 0 the measurement ``(E, M, alpha[4])`` of
 round trip r goes to the estimator and the controller, whose angles apply from r + 1.
+:func:`replay_decisions` feeds a recorded run's measurements to a controller again.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from collections.abc import Callable
 import numpy as np
 
 from dlmpc_ros.control.estimator import SurrogateEstimator
-from dlmpc_ros.control.step import Controller
+from dlmpc_ros.control.step import Controller, ControlStep
 from dlmpc_ros.core.cavity import Cavity
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.drift import Scenario
@@ -78,3 +79,21 @@ def run_closed_loop(controller: Controller, scenario: Scenario, round_trips: int
         if progress is not None:
             progress(r)
     return builder.build()
+
+
+def replay_decisions(controller: Controller, record: RunRecord,
+                     estimator: SurrogateEstimator | None = None) -> list[ControlStep]:
+    """The controller's decisions on a recorded run's measurements, in order.
+
+    Every control period of ``record`` gives the measurement ``(E, M, alpha[4])`` of its
+    round trip (the angles that round trip ran with), as :func:`run_closed_loop` gave it;
+    nothing else of the run (no K, no simulator) is used. A controller that reads only
+    its measurements decides exactly as it did in the run.
+    """
+    index = np.searchsorted(record.round_trip, record.control_round_trip)
+    steps = []
+    for i in index:
+        measurement = np.array([record.E[i], record.M[i], *record.angles[i]])
+        surrogate = None if estimator is None else estimator.update(measurement)[0]
+        steps.append(controller.step(measurement, surrogate))
+    return steps

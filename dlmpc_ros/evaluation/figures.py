@@ -13,7 +13,7 @@ import numpy as np
 
 from dlmpc_ros.control.step import MODES
 from dlmpc_ros.evaluation.record import RunRecord
-from dlmpc_ros.learning.oracle import envelope_objective
+from dlmpc_ros.learning.tables import envelope_objective
 
 ANGLE_NAMES = ('alpha1', 'alpha2', 'alpha3', 'alpha_p')
 

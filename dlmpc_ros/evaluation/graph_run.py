@@ -11,7 +11,7 @@ import numpy as np
 
 from dlmpc_ros.control.step import MODES
 from dlmpc_ros.evaluation.record import RunRecord
-from dlmpc_ros.ros_csv import read_decisions_csv, read_run_csv
+from dlmpc_ros.recording.run_csv import read_decisions_csv, read_run_csv
 
 
 def record_from_csv(run_csv: Path, meta: dict | None = None) -> RunRecord:

@@ -25,7 +25,7 @@ import numpy as np
 
 from dlmpc_ros.control.step import MODES
 from dlmpc_ros.evaluation.record import RunRecord
-from dlmpc_ros.learning.oracle import envelope_objective
+from dlmpc_ros.learning.tables import envelope_objective
 
 
 @dataclass(frozen=True)

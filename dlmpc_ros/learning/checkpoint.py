@@ -7,15 +7,15 @@ containers: loading a model never executes code from the file.
 
 from __future__ import annotations
 
-import hashlib
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
 SCHEMA_VERSION = 1
-KINDS = ('vae', 'kmap', 'mprnn')
+#: Model kinds and what they are called in messages.
+KINDS = {'vae': 'VAE estimator', 'kmap': 'K-to-angles map', 'mprnn': 'MP-RNN'}
 
 
 class ModelFileError(RuntimeError):
@@ -31,7 +31,7 @@ def save_checkpoint(path: str | Path, kind: str, state_dict: dict[str, torch.Ten
                     fingerprint: str) -> Path:
     """Write a model file; ``kind`` is one of :data:`KINDS`."""
     if kind not in KINDS:
-        raise ValueError(f'unknown model kind {kind!r}; one of {KINDS}')
+        raise ValueError(f'unknown model kind {kind!r}; one of {tuple(KINDS)}')
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     payload = {'schema_version': SCHEMA_VERSION, 'kind': kind,
@@ -64,11 +64,21 @@ def load_checkpoint(path: str | Path, kind: str) -> dict[str, Any]:
     return payload
 
 
-def fingerprint_arrays(arrays: dict[str, np.ndarray]) -> str:
-    """Short SHA-256 over named arrays (names, dtypes, shapes and bytes)."""
-    digest = hashlib.sha256()
-    for name in sorted(arrays):
-        a = np.ascontiguousarray(arrays[name])
-        digest.update(f'{name}:{a.dtype}:{a.shape};'.encode())
-        digest.update(a.tobytes())
-    return digest.hexdigest()[:16]
+def load_model(path: str | Path, kind: str, build: Callable[[dict[str, Any]], torch.nn.Module]
+               ) -> tuple[torch.nn.Module, dict[str, Any]]:
+    """A model rebuilt from its file, in eval mode, and the file's payload.
+
+    ``build(config)`` makes the untrained model from the stored config dict; its weights
+    are then loaded. Raises :class:`ModelFileError` when the file is missing or corrupt,
+    holds another kind, or does not fit this version's model.
+    """
+    payload = load_checkpoint(path, kind)
+    try:
+        model = build(payload['config'])
+        model.load_state_dict(payload['state_dict'])
+    except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as err:
+        first = (str(err).splitlines() or [''])[0]
+        raise ModelFileError(f'model file {path} does not hold a valid {KINDS[kind]} for this '
+                             f'version ({type(err).__name__}: {first}); '
+                             f'{regenerate_hint(kind)}') from None
+    return model.eval(), payload

@@ -15,6 +15,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import torch
 
+from dlmpc_ros.core import checks
+
 N_MEASURED = 6  # E, M, 4 angles
 N_FEATURES = 10  # E_n, logM_n, sin 2a (4), cos 2a (4)
 N_ANGLES = 4
@@ -27,9 +29,17 @@ class Normalizer:
     """Standardization of E and log M (means and standard deviations)."""
 
     e_mean: float = 3.0
+    """Mean of E (L2 norm of the field)."""
     e_std: float = 1.0
+    """Standard deviation of E (> 0)."""
     logm_mean: float = 3.5
+    """Mean of log M (spectral kurtosis)."""
     logm_std: float = 0.5
+    """Standard deviation of log M (> 0)."""
+
+    def __post_init__(self) -> None:
+        checks.finite(self, 'e_mean', 'logm_mean')
+        checks.positive(self, 'e_std', 'logm_std')
 
     @classmethod
     def fit(cls, energy_norm: np.ndarray, kurtosis: np.ndarray) -> Normalizer:
@@ -59,6 +69,13 @@ class Normalizer:
         """O = E / M from normalized states v (..., 2); differentiable."""
         energy_norm, kurtosis = self.unstates(v)
         return energy_norm / kurtosis
+
+
+def measurements(data: dict[str, np.ndarray]) -> np.ndarray:
+    """Measurements (..., 6) float32 ``(E, M, alpha[4])`` of a dataset's ``E`` (...),
+    ``M`` (...) and ``alpha`` (..., 4) arrays."""
+    return np.concatenate([data['E'][..., None], data['M'][..., None], data['alpha']],
+                          axis=-1).astype(np.float32)
 
 
 def angle_features(alpha: torch.Tensor) -> torch.Tensor:

@@ -8,47 +8,74 @@ latent z. Two decoders are offered:
   angles*, so z only has to carry what the angles leave unexplained;
 - plain (the paper's): the decoder reconstructs every feature, angles included, from z.
 
-One latent coordinate is chosen as the K surrogate by a rule that uses no labels: the
-smoothest one over time on the training trajectories (smallest mean squared step
-relative to its variance), among coordinates the model actually uses. The surrogate is
+One latent coordinate is the K surrogate (:attr:`VAEConfig.surrogate_dim`, chosen by the
+training stage without labels, :mod:`dlmpc_ros.training.stages.vae`). The surrogate is
 published standardized (zero mean, unit variance on the training data), not in K's units.
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
 
+from dlmpc_ros.core import checks
+from dlmpc_ros.learning.checkpoint import load_model
 from dlmpc_ros.learning.features import N_FEATURES, Normalizer, angle_features, features
+from dlmpc_ros.learning.seeding import reset_linear_layers
 
 
-@dataclass
+@dataclass(frozen=True)
 class VAEConfig:
-    """Architecture and the surrogate choice of the estimator."""
+    """Architecture of the estimator and how its surrogate is read (stored in its file)."""
 
     window: int = 1
+    """w: measurements per encoder input window."""
     latent: int = 2
+    """Size of the latent z."""
     conditional: bool = True
     """True: the decoder gets the angles and reconstructs (E, M); False (the paper's
     plain VAE): it reconstructs every feature, angles included, from z alone."""
     hidden: int = 64
+    """Units of the encoder's and the decoder's hidden layers."""
     beta: float = 0.1
+    """Weight of the KL term of the loss."""
     normalizer: dict = field(default_factory=lambda: Normalizer().to_dict())
+    """Normalizer of E and log M, as :meth:`Normalizer.to_dict`."""
     surrogate_dim: int = 0
+    """The latent coordinate that is the K surrogate (chosen after training)."""
     surrogate_mean: float = 0.0
+    """Mean of that coordinate on the training data (the surrogate is standardized)."""
     surrogate_std: float = 1.0
+    """Its standard deviation there (> 0)."""
+
+    def __post_init__(self) -> None:
+        checks.counts(self, 'window', 'latent', 'hidden')
+        checks.counts(self, 'surrogate_dim', minimum=0)
+        if self.surrogate_dim >= self.latent:
+            raise ValueError(f'VAEConfig.surrogate_dim must be < latent = {self.latent}, '
+                             f'got {self.surrogate_dim}')
+        if not isinstance(self.conditional, bool):
+            raise ValueError(f'VAEConfig.conditional must be a bool, got {self.conditional!r}')
+        checks.non_negative(self, 'beta')
+        checks.finite(self, 'surrogate_mean')
+        checks.positive(self, 'surrogate_std')
+        Normalizer(**self.normalizer)
 
     def to_dict(self) -> dict:
         return asdict(self)
 
 
 class ConditionalVAE(nn.Module):
-    """Encoder q(z | window of features), decoder p(window of states | z, angles)."""
+    """Encoder q(z | window of features), decoder p(window of states | z, angles).
 
-    def __init__(self, config: VAEConfig) -> None:
+    ``generator`` (optional) draws the initial weights (PyTorch's default scheme).
+    """
+
+    def __init__(self, config: VAEConfig, generator: torch.Generator | None = None) -> None:
         super().__init__()
         self.config = config
         self.norm = Normalizer(**config.normalizer)
@@ -59,6 +86,8 @@ class ConditionalVAE(nn.Module):
         n_out = w * 2 if config.conditional else w * N_FEATURES
         self.decoder = nn.Sequential(nn.Linear(n_in, h), nn.ReLU(), nn.Linear(h, h),
                                      nn.ReLU(), nn.Linear(h, n_out))
+        if generator is not None:
+            reset_linear_layers(self, generator)
 
     def encode(self, measured: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Posterior mean and log-variance (B, latent) of measurements (B, w, 6)."""
@@ -95,6 +124,17 @@ class ConditionalVAE(nn.Module):
         return (mu[:, c.surrogate_dim] - c.surrogate_mean) / c.surrogate_std
 
 
+def load_vae(path: str | Path) -> tuple[ConditionalVAE, dict]:
+    """The estimator and its file's payload (config, metrics, fingerprint); raises
+    :class:`~dlmpc_ros.learning.checkpoint.ModelFileError`."""
+    return load_model(path, 'vae', lambda config: ConditionalVAE(VAEConfig(**config)))
+
+
+def surrogate_of(vae: ConditionalVAE, measured: np.ndarray) -> np.ndarray:
+    """Surrogate (B,) of measurement windows (B, w, 6)."""
+    return vae.surrogate(torch.as_tensor(measured, dtype=torch.float32)).numpy()
+
+
 def windows(measured: np.ndarray, window: int) -> np.ndarray:
     """Sliding windows (lanes * (T - w + 1), w, 6) of trajectories (lanes, T, 6)."""
     lanes, steps, _ = measured.shape
@@ -105,25 +145,3 @@ def windows(measured: np.ndarray, window: int) -> np.ndarray:
 def steady_windows(measured: np.ndarray, window: int) -> np.ndarray:
     """Steady states (B, 6) as windows of ``window`` identical measurements."""
     return np.repeat(measured[:, None, :], window, axis=1)
-
-
-def choose_surrogate(model: ConditionalVAE, trajectories: np.ndarray,
-                     min_kl: float = 0.05) -> tuple[int, dict[str, list[float]]]:
-    """Pick the smoothest used latent coordinate over time (no K labels).
-
-    trajectories: (lanes, T, 6). Returns the coordinate and the per-coordinate scores.
-    """
-    w = model.config.window
-    with torch.no_grad():
-        batch = torch.as_tensor(windows(trajectories, w), dtype=torch.float32)
-        mu, logvar = model.encode(batch)
-    steps = trajectories.shape[1] - w + 1
-    mu = mu.numpy().reshape(trajectories.shape[0], steps, -1)
-    kl = (-0.5 * (1 + logvar - torch.as_tensor(mu.reshape(-1, mu.shape[-1])) ** 2
-                  - logvar.exp())).mean(0).numpy()
-    roughness = (np.diff(mu, axis=1) ** 2).mean(axis=(0, 1)) / mu.reshape(-1, mu.shape[-1]).var(0)
-    eligible = np.flatnonzero(kl > min_kl)
-    if eligible.size == 0:
-        eligible = np.arange(mu.shape[-1])
-    dim = int(eligible[np.argmin(roughness[eligible])])
-    return dim, {'kl_per_dim': kl.tolist(), 'roughness_per_dim': roughness.tolist()}

@@ -61,9 +61,7 @@ class DriftInjectorNode(Node):
         self.get_logger().info(f'drift scenario {values["scenario"]} {settings}')
 
     def _on_state(self, msg: Float64MultiArray) -> None:
-        fault = itf.state_fault(msg.data)
-        if fault is not None:
-            self._warn.dropped(itf.TOPIC_STATE, fault)
+        if not itf.usable_state(msg.data, self._warn):
             return
         round_trip = int(msg.data[0])
         if round_trip % self.publish_every == 0:

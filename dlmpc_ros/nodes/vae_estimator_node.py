@@ -47,9 +47,7 @@ class VAEEstimatorNode(Node):
                         *(f'z{i + 1}' for i in range(self.estimator.vae.config.latent))]
 
     def _on_state(self, msg: Float64MultiArray) -> None:
-        fault = itf.state_fault(msg.data)
-        if fault is not None:
-            self._warn.dropped(itf.TOPIC_STATE, fault)
+        if not itf.usable_state(msg.data, self._warn):
             return
         round_trip = int(msg.data[0])
         if round_trip % self.period:

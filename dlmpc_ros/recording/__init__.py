@@ -3,7 +3,9 @@
 :mod:`~dlmpc_ros.recording.writer` writes already-serialized CDR messages into a bag that
 a Jazzy ``ros2 bag info`` / ``ros2 bag play`` reads; :mod:`~dlmpc_ros.recording.reader`
 loads a bag into numpy arrays per topic; :mod:`~dlmpc_ros.recording.repair` makes a bag
-whose recorder was killed readable again.
+whose recorder was killed readable again; :mod:`~dlmpc_ros.recording.run_csv` is the
+bringup's CSV record of a run, which :mod:`~dlmpc_ros.recording.export` also makes from a
+bag.
 """
 
 from dlmpc_ros.recording.reader import (

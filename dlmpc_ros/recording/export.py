@@ -20,7 +20,7 @@ import numpy as np
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.recording.reader import BagTopic, read_bag, read_metadata
 from dlmpc_ros.recording.writer import BagError
-from dlmpc_ros.ros_csv import DECISION_FIELDS, decisions_path, write_header, write_row
+from dlmpc_ros.recording.run_csv import DECISION_FIELDS, decisions_path, write_header, write_row
 
 
 @dataclass(frozen=True)

@@ -85,9 +85,8 @@ class ControllerNodeBase(Node):
         self.create_timer(0.02, self._check_timeout)
 
     def _on_state(self, msg: Float64MultiArray) -> None:
-        fault = itf.state_fault(msg.data)
-        if fault is not None:
-            return self._warn.dropped(itf.TOPIC_STATE, fault)
+        if not itf.usable_state(msg.data, self._warn):
+            return None
         round_trip = int(msg.data[0])
         if round_trip % self.period or round_trip == self._last_acted:
             return None

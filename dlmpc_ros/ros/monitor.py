@@ -26,7 +26,7 @@ from dlmpc_ros import interfaces as itf
 from dlmpc_ros.graph import NodeGraph
 from dlmpc_ros.ros.io import QOS
 from dlmpc_ros.ros.params import stop_on_signals
-from dlmpc_ros.ros_csv import DECISION_FIELDS, decisions_path, write_header, write_row
+from dlmpc_ros.recording.run_csv import DECISION_FIELDS, decisions_path, write_header, write_row
 
 #: States wait at most this many rows for their K before they are written without it.
 MAX_PENDING = 2000

@@ -1,4 +1,4 @@
-"""Curve tracking: entry, extremum seeking along the curve, the guard, and its file."""
+"""Curve tracking: entry, extremum seeking along the curve, the guard."""
 
 import numpy as np
 import pytest
@@ -8,7 +8,6 @@ from dlmpc_ros.control.dlmpc import DLMPCConfig, DLMPCController
 from dlmpc_ros.control.tracking import CurveTracker, TrackingConfig
 from dlmpc_ros.learning.kmap import KMap, KMapConfig
 from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
-from dlmpc_ros.learning.track_curve import curve_from_baselines, load_curve, save_curve
 
 GRID = np.linspace(-0.3, 0.3, 61)
 #: A toy curve whose first angle is twice its parameter, so a command tells its s.
@@ -161,25 +160,3 @@ def test_dlmpc_tracks_once_locked_and_reports_its_estimate():
     assert DLMPCController(kmap, mprnn, cfg, target_objective=0.2).tracker is None
     off = DLMPCConfig(tracking=None)
     assert DLMPCController(kmap, mprnn, off, 0.2, (GRID, ANGLES, GRID)).tracker is None
-
-
-def test_curve_file_round_trip_and_errors(tmp_path):
-    baselines = {'K': GRID, 'tracking_angles': ANGLES + np.pi * (GRID > 0)[:, None],
-                 'tracking_O': 0.2 + 0 * GRID}
-    curve = curve_from_baselines(baselines)
-    assert set(curve) == {'grid', 'angles', 'objective', 'schema_version'}
-    assert np.abs(np.diff(curve['angles'], axis=0)).max() < 0.05   # unwrapped: continuous
-    path = save_curve(tmp_path / 'track_curve.npz', curve, 'test')
-    grid, angles, objective = load_curve(path)
-    np.testing.assert_allclose(objective, 0.2)
-    np.testing.assert_allclose(grid, GRID)
-    np.testing.assert_allclose(angles, curve['angles'])
-    with pytest.raises(FileNotFoundError, match='dlmpc-train curve'):
-        load_curve(tmp_path / 'missing.npz')
-    (tmp_path / 'bad.npz').write_bytes(b'not a zip')
-    with pytest.raises(ValueError, match='dlmpc-train curve'):
-        load_curve(tmp_path / 'bad.npz')
-    np.savez(tmp_path / 'short.npz', grid=GRID, angles=ANGLES[:, :2], objective=GRID,
-             schema_version=np.array(1))
-    with pytest.raises(ValueError, match='malformed'):
-        load_curve(tmp_path / 'short.npz')

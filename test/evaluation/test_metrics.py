@@ -71,7 +71,7 @@ def test_round_trips_without_k_are_left_out_and_a_run_without_k_gets_measured_me
 
 
 def test_seed_summary_and_ratio_to_the_oracle_controller():
-    from dlmpc_ros.cli.evaluate import add_oracle_controller_ratio, seed_summary
+    from dlmpc_ros.evaluation.report import add_oracle_controller_ratio, seed_summary
 
     runs = [{'scenario': 'steps', 'seed': seed, 'controller': name,
              'metrics': {'mean_O': mean_o, 'oracle_ratio': mean_o / 0.2}}

@@ -49,7 +49,7 @@ def _check_bag_evaluation(tmp_path: Path, graph) -> None:
     """The bag recorded beside the run gives the run's record, metrics and plots."""
     from dlmpc_ros.cli.evaluate import main as evaluate
     from dlmpc_ros.evaluation.metrics import run_metrics
-    from dlmpc_ros.learning.baselines import load_baselines
+    from dlmpc_ros.learning.tables import load_baselines
 
     assert evaluate(['--bag', str(tmp_path / 'bag'), '--out', str(tmp_path / 'from-bag'),
                      '--models-dir', str(MODELS)]) == 0

@@ -266,7 +266,7 @@ def _still_controls(probe, fuzz, status, round_trip, estimate=None) -> None:
 def _baseline_models(tmp_path) -> str:
     """The installed models/ if it has the baseline tables, else stand-in tables (the fuzz
     is about input handling, not about the angles in the tables)."""
-    from dlmpc_ros.learning.baselines import REQUIRED_KEYS, load_baselines
+    from dlmpc_ros.learning.tables import REQUIRED_KEYS, load_baselines
     from dlmpc_ros.paths import models_dir
     try:
         load_baselines(models_dir() / 'oracle.npz')

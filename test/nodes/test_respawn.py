@@ -34,7 +34,7 @@ LOCKED_FOR = 50  # consecutive round trips with O above the lock level
 
 @functools.cache
 def _envelope() -> tuple[dict | None, str]:
-    from dlmpc_ros.learning.oracle import load_envelope
+    from dlmpc_ros.learning.tables import load_envelope
     for path in (ROOT / 'models' / 'oracle.npz', ROOT / 'data' / 'oracle.npz'):
         if path.is_file():
             envelope = load_envelope(path)
@@ -45,7 +45,7 @@ def _envelope() -> tuple[dict | None, str]:
 
 def lock_level(k) -> tuple[np.ndarray, str]:
     """Half the oracle's O*(K) where an oracle envelope (with O_star) is at hand, else 0.1."""
-    from dlmpc_ros.learning.oracle import envelope_objective
+    from dlmpc_ros.learning.tables import envelope_objective
     envelope, what = _envelope()
     if envelope is None:
         return np.full(np.shape(k), 0.1), what

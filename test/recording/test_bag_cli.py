@@ -13,7 +13,7 @@ import pytest
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.cli.bag import main
 from dlmpc_ros.recording import BagWriter, read_bag
-from dlmpc_ros.ros_csv import read_run_csv
+from dlmpc_ros.recording.run_csv import read_run_csv
 from test.recording.bagutil import serialize, state, write_run
 
 TOPICS = (itf.TOPIC_SIM_TRUTH, itf.TOPIC_STATE, itf.TOPIC_OBJECTIVE)

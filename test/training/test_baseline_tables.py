@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from dlmpc_ros.learning.baselines import (REQUIRED_KEYS, TrackingConfig, angle_distance,
-                                          fixed_best_angles, interpolate_angles,
-                                          load_baselines, save_baselines, sweep_grid,
-                                          tracking_path)
+from dlmpc_ros.core.angles import angle_distance
+from dlmpc_ros.learning.tables import REQUIRED_KEYS, load_baselines, save_baselines
+from dlmpc_ros.training.baseline_tables import (PathConfig, fixed_best_angles, sweep_grid,
+                                                tracking_path)
 
 K_GRID = np.linspace(-0.3, 0.3, 7)
 
@@ -52,9 +52,9 @@ def test_tracking_path_stays_on_a_branch_where_the_pointwise_best_jumps():
     })
     grid = sweep_grid(sweep)
     assert list(grid.chains[grid.O.argmax(axis=0)]) == [0, 0, 0, 2, 1, 1, 1]  # jumps to 1
-    path = tracking_path(sweep, TrackingConfig(candidates=3))
+    path = tracking_path(sweep, PathConfig(candidates=3))
     assert path['breaks'] == 0
-    assert path['jump'].max() <= TrackingConfig().max_jump
+    assert path['jump'].max() <= PathConfig().max_jump
     assert set(path['chain'][:3]) == {0} and set(path['chain'][4:]) == {2}
     # One chain switch (0 -> 2) where both are converged at both K, pi-periodic distance.
     assert np.count_nonzero(path['chain'][1:] != path['chain'][:-1]) == 1
@@ -71,12 +71,10 @@ def test_tracking_path_counts_breaks_when_no_continuous_path_exists():
     assert list(path['chain']) == [0, 0, 0, 1, 1, 1, 1]
 
 
-def test_angle_distance_and_interpolation_are_pi_periodic():
+def test_angle_distance_is_pi_periodic():
     a = np.array([1.5, 0.0, 0.0, 0.0])
     b = np.array([-1.5, 0.0, 0.0, 0.0])
     assert angle_distance(a, b) == pytest.approx(np.pi - 3.0)
-    mid = interpolate_angles(np.array([0.0, 1.0]), np.stack([a, b]), 0.5)
-    np.testing.assert_allclose(np.abs(mid[0]), np.pi / 2, atol=1e-12)  # across the wrap
 
 
 def _tables() -> dict[str, np.ndarray]:

@@ -5,48 +5,50 @@ estimate on the curve's own axis, in K's units), ``angles`` (n, 4) [rad], contin
 along the grid (pi-equivalents chosen next to each other), and ``objective`` (n,), the
 steady O the simulator reached on the curve at each grid point, plus ``schema_version``.
 It is made from the refined tracking path of the baseline tables (``models/oracle.npz``)
-by ``dlmpc-train curve`` (or at the end of ``dlmpc-train baselines``). The controller
+by ``dlmpc-train curve`` (or at the end of ``dlmpc-train baselines``;
+:mod:`dlmpc_ros.training.stages.curve`). The controller
 that loads it never learns the true K of a run: the curve is a map from an estimate to
 angles, like the K-to-angles map.
 """
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
-from dlmpc_ros.control.tracking import check_curve
-from dlmpc_ros.learning.baselines import read_npz, unwrap_table
+from dlmpc_ros.learning.tables import read_npz, write_npz
 
 SCHEMA_VERSION = 1
 FILE_NAME = 'track_curve.npz'
 HINT = 'run `dlmpc-train curve` (from models/oracle.npz) to make it'
 
 
-def curve_from_baselines(baselines: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """The curve arrays from the baseline tables: the refined tracking path where the
-    tables have it (full runs), else the plain tracking path (``--quick`` runs)."""
-    key = 'tracking_refined' if 'tracking_refined_angles' in baselines else 'tracking'
-    return {'grid': np.asarray(baselines['K'], float),
-            'angles': unwrap_table(baselines[f'{key}_angles']),
-            'objective': np.asarray(baselines[f'{key}_O'], float),
-            'schema_version': np.array(SCHEMA_VERSION)}
+def check_curve(grid: np.ndarray, angles: np.ndarray, expected: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """A tracking curve as float arrays, checked: ``grid`` (n,) increasing, n >= 2,
+    ``angles`` (n, 4) finite [rad], ``expected`` (n,) finite steady O or None.
+
+    Raises ValueError saying what is wrong."""
+    grid, angles = np.asarray(grid, float), np.asarray(angles, float)
+    if grid.ndim != 1 or grid.size < 2 or angles.shape != (grid.size, 4) \
+            or not np.all(np.diff(grid) > 0) or not np.all(np.isfinite(angles)):
+        raise ValueError('a tracking curve needs an increasing grid (n >= 2) and finite '
+                         f'(n, 4) angles; got {grid.shape} and {angles.shape}')
+    if expected is not None:
+        expected = np.asarray(expected, float)
+        if expected.shape != grid.shape or not np.all(np.isfinite(expected)):
+            raise ValueError(f'the expected O {expected.shape} of a tracking curve must be '
+                             f'finite and fit its grid {grid.shape}')
+    return grid, angles, expected
 
 
 def save_curve(path: Path, curve: dict[str, np.ndarray], source: str) -> Path:
     """Write the curve (.npz, plain arrays) and a .json note of how it was made."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + '.tmp.npz')
-    np.savez(tmp, **curve)
-    tmp.replace(path)
     note = {'schema_version': SCHEMA_VERSION, 'made_by': 'dlmpc-train curve',
             'source': source, 'points': int(curve['grid'].size),
             'mean_objective': float(np.mean(curve['objective']))}
-    path.with_suffix('.json').write_text(json.dumps(note, indent=2))
-    return path
+    return write_npz(path, curve, note)
 
 
 def load_curve(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -65,15 +67,3 @@ def load_curve(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return check_curve(grid, angles, objective)
     except ValueError as err:
         raise ValueError(f'tracking curve {path} is malformed ({err}); {HINT}') from None
-
-
-def train_curve_stage(models_dir: Path) -> dict:
-    """``dlmpc-train curve``: models/oracle.npz -> models/track_curve.npz; its summary."""
-    from dlmpc_ros.learning.baselines import load_baselines
-    source = Path(models_dir) / 'oracle.npz'
-    baselines = load_baselines(source)
-    curve = curve_from_baselines(baselines)
-    save_curve(Path(models_dir) / FILE_NAME, curve, str(source))
-    return {'points': int(curve['grid'].size),
-            'mean_objective': float(np.mean(curve['objective'])),
-            'refined': 'tracking_refined_angles' in baselines}

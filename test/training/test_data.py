@@ -6,10 +6,10 @@ import numpy as np
 
 from dlmpc_ros.cli.data import QUICK_EXTRA_LANES, QUICK_SWEEP, QUICK_TRAJECTORIES
 from dlmpc_ros.core.config import CavityConfig
-from dlmpc_ros.learning import shards
-from dlmpc_ros.learning.oracle import envelope_angles, envelope_objective, load_envelope
-from dlmpc_ros.learning.sweep import generate_sweep
-from dlmpc_ros.learning.trajectories import load_trajectories
+from dlmpc_ros.learning.tables import envelope_angles, envelope_objective, load_envelope
+from dlmpc_ros.training import shards
+from dlmpc_ros.training.sweep import generate_sweep
+from dlmpc_ros.training.trajectories import load_trajectories
 
 
 def test_sweep_covers_k_grid_and_angle_sets(quick_data):

@@ -1,4 +1,5 @@
-"""The VAE estimator and the K-to-angles map, trained on the tiny dataset."""
+"""The training stages of the VAE estimator and the K-to-angles map (the tiny dataset),
+the model files they write, and the ``dlmpc-train`` command."""
 
 import json
 
@@ -10,11 +11,13 @@ from dlmpc_ros.cli.data import QUICK_EXTRA_LANES
 from dlmpc_ros.learning.checkpoint import ModelFileError, load_checkpoint, save_checkpoint
 from dlmpc_ros.learning.features import Normalizer
 from dlmpc_ros.learning.fit import fit
-from dlmpc_ros.learning.kmap import SubsetRule, train_kmap, training_subset
-from dlmpc_ros.learning.pipeline import (Paths, load_kmap, load_vae, train_kmap_stage,
-                                         train_vae_stage)
-from dlmpc_ros.learning.trajectories import load_trajectories
-from dlmpc_ros.learning.vae import ConditionalVAE, VAEConfig, choose_surrogate, windows
+from dlmpc_ros.learning.kmap import KMapConfig, load_kmap
+from dlmpc_ros.learning.vae import ConditionalVAE, VAEConfig, load_vae, windows
+from dlmpc_ros.training.stages.kmap import (SubsetRule, train_kmap, train_kmap_stage,
+                                            training_subset)
+from dlmpc_ros.training.stages.vae import choose_surrogate, train_vae_stage
+from dlmpc_ros.training.trajectories import load_trajectories
+from dlmpc_ros.training.workspace import Workspace
 
 
 def _synthetic(lanes=4, steps=300, seed=0):
@@ -29,8 +32,8 @@ def _synthetic(lanes=4, steps=300, seed=0):
 def test_vae_loss_decreases_and_surrogate_tracks_the_hidden_factor():
     measured, k = _synthetic()
     norm = Normalizer.fit(measured[..., 0], measured[..., 1])
-    torch.manual_seed(0)
-    model = ConditionalVAE(VAEConfig(window=1, normalizer=norm.to_dict()))
+    model = ConditionalVAE(VAEConfig(window=1, normalizer=norm.to_dict()),
+                           generator=torch.Generator().manual_seed(0))
     history = fit(model, model.loss, windows(measured, 1), epochs=30, batch=128,
                   show_progress=False)
     assert history[-1] < 0.5 * history[0]
@@ -79,8 +82,7 @@ def test_kmap_fit_reduces_loss():
     centres = np.linspace(-2, 2, 40)
     targets = np.stack([0.3 * centres, -0.2 * centres, 0.1 + 0 * centres, 0.4 * np.tanh(centres)],
                        axis=1)
-    model, losses = train_kmap(centres, targets, __import__(
-        'dlmpc_ros.learning.kmap', fromlist=['KMapConfig']).KMapConfig(), steps=600)
+    model, losses = train_kmap(centres, targets, KMapConfig(), steps=600)
     assert losses[-1] < 0.05 * losses[0]
     with torch.no_grad():
         got = model(torch.as_tensor(centres, dtype=torch.float32)[:, None]).numpy()
@@ -88,14 +90,14 @@ def test_kmap_fit_reduces_loss():
 
 
 def test_training_stages_on_the_tiny_dataset(quick_data, tmp_path):
-    paths = Paths(quick_data, tmp_path / 'models')
-    vae_metrics = train_vae_stage(paths, epochs=2, show_progress=False)
+    ws = Workspace(quick_data, tmp_path / 'models')
+    vae_metrics = train_vae_stage(ws, epochs=2, show_progress=False)
     assert 0 <= vae_metrics['abs_pearson_r_heldout'] <= 1
-    assert (paths.figures / 'vae_surrogate.png').stat().st_size > 10_000
-    kmap_metrics = train_kmap_stage(paths, steps=100, show_progress=False)
+    assert (ws.figures / 'vae_surrogate.png').stat().st_size > 10_000
+    kmap_metrics = train_kmap_stage(ws, steps=100)
     assert len(kmap_metrics['per_k_ratio_from_oracle_state']) == 7
-    model, payload = load_kmap(paths.model('kmap'))
-    assert payload['metrics']['vae_fingerprint'] == load_vae(paths.model('vae'))[1][
+    model, payload = load_kmap(ws.model('kmap'))
+    assert payload['metrics']['vae_fingerprint'] == load_vae(ws.model('vae'))[1][
         'data_fingerprint']
     assert model(torch.zeros(3, 1)).shape == (3, 4)
 

@@ -1,8 +1,8 @@
 """Baseline angle tables from the sweep: the fixed best angle set and a branch-continuous
 tracking path for the oracle.
 
-The point-wise envelope (:mod:`dlmpc_ros.learning.oracle`) holds, per K, the angles of the
-best steady state found anywhere. The laser is multistable and those states lie on
+The point-wise envelope (:mod:`dlmpc_ros.training.envelope`) holds, per K, the angles of
+the best steady state found anywhere. The laser is multistable and those states lie on
 different branches (found from the spec's initial pulse or by continuation in K): an
 oracle that jumps between them as K drifts drops the pulse, and the simulated laser has
 no noise to start a new one. The tables here keep the laser on one branch:
@@ -21,31 +21,25 @@ no noise to start a new one. The tables here keep the laser on one branch:
   down, from the spec's initial pulse at one K: a table keeps its branch when these match
   the table's O.
 
-``dlmpc-train baselines`` (:func:`train_baselines_stage`) writes the tables to
-``models/oracle.npz`` (no pickled objects) with ``models/oracle.json``; read them with
-:func:`load_baselines`. Angles are in radians, every element pi-periodic.
+:func:`build_baselines` makes them all; ``dlmpc-train baselines``
+(:mod:`dlmpc_ros.training.stages.baselines`) writes them to ``models/oracle.npz``
+(:mod:`dlmpc_ros.learning.tables`). Angles are in radians, every element pi-periodic.
 """
 
 from __future__ import annotations
 
-import json
-import time
-import zipfile
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from pathlib import Path
 
 import numpy as np
 
+from dlmpc_ros.core import checks
+from dlmpc_ros.core.angles import angle_distance, wrap_angles
 from dlmpc_ros.core.cavity import Cavity
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.steady import run_to_steady
-from dlmpc_ros.learning.sweep import wrap_angles
-
-#: Arrays every baselines file holds (others may be added).
-REQUIRED_KEYS = ('K', 'O_star', 'angles', 'tracking_angles', 'tracking_O', 'fixed_best_angles',
-                 'fixed_best_worst_O', 'fixed_best_mean_O')
-SCHEMA_VERSION = 1
+from dlmpc_ros.learning.tables import SCHEMA_VERSION
+from dlmpc_ros.training.search import best_path, compass_search
 
 
 # -- the sweep as a table ---------------------------------------------------------------------
@@ -98,28 +92,6 @@ def sweep_grid(sweep: dict[str, np.ndarray]) -> SweepGrid:
     return SweepGrid(chains, k_grid, angles, o, good_grid, pulses)
 
 
-def angle_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Euclidean distance between angle sets (..., 4), each element modulo pi [rad]."""
-    return np.linalg.norm(wrap_angles(np.asarray(a, float) - np.asarray(b, float)), axis=-1)
-
-
-def unwrap_table(angles: np.ndarray) -> np.ndarray:
-    """A table of angles (n, 4) made continuous along its first axis: every row replaced
-    by its pi-equivalent nearest to the row before."""
-    angles = np.asarray(angles, float)
-    steps = wrap_angles(np.diff(angles, axis=0))
-    return np.concatenate([angles[:1], angles[:1] + np.cumsum(steps, axis=0)])
-
-
-def interpolate_angles(k_grid: np.ndarray, angles: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """Angles (..., 4) at ``k`` (...,), linear in K between grid points along the
-    pi-equivalents nearest to each other; constant beyond the grid's ends."""
-    table = unwrap_table(angles)
-    k = np.asarray(k, float)
-    out = np.stack([np.interp(k, k_grid, table[:, j]) for j in range(4)], axis=-1)
-    return wrap_angles(out)
-
-
 # -- fixed best -------------------------------------------------------------------------------
 
 def fixed_best_angles(sweep: dict[str, np.ndarray]) -> dict:
@@ -141,37 +113,33 @@ def fixed_best_angles(sweep: dict[str, np.ndarray]) -> dict:
 # -- tracking path ----------------------------------------------------------------------------
 
 @dataclass(frozen=True)
-class TrackingConfig:
-    """Settings of the tracking path's dynamic program.
-
-    Attributes
-    ----------
-    candidates
-        Converged sweep states considered per K (the highest O first).
-    jump_penalty
-        Cost per radian of angle change between neighbouring K, in units of O.
-    switch_penalty
-        Fixed cost of changing chain (beyond the angle change), in units of O.
-    max_jump
-        Largest angle change of a change of chain between neighbouring K [rad]
-        (pi-periodic Euclidean norm).
-    break_penalty
-        Cost of a transition that breaks the rules above, in units of O; such breaks are
-        taken only where no allowed transition exists (a sparse sweep) and are counted.
-    """
+class PathConfig:
+    """Settings of the tracking path's dynamic program."""
 
     candidates: int = 40
+    """Converged sweep states considered per K (the highest O first)."""
     jump_penalty: float = 0.05
+    """Cost per radian of angle change between neighbouring K, in units of O."""
     switch_penalty: float = 0.002
+    """Fixed cost of changing chain (beyond the angle change), in units of O."""
     max_jump: float = 0.3
+    """Largest angle change of a change of chain between neighbouring K [rad]
+    (pi-periodic Euclidean norm)."""
     break_penalty: float = 1.0
+    """Cost of a transition that breaks the rules above, in units of O; such breaks are
+    taken only where no allowed transition exists (a sparse sweep) and are counted."""
+
+    def __post_init__(self) -> None:
+        checks.counts(self, 'candidates')
+        checks.non_negative(self, 'jump_penalty', 'switch_penalty', 'break_penalty')
+        checks.positive(self, 'max_jump')
 
     def to_dict(self) -> dict:
         return asdict(self)
 
 
 def transition_cost(grid: SweepGrid, before: np.ndarray, now: np.ndarray, i: int,
-                    cfg: TrackingConfig) -> tuple[np.ndarray, np.ndarray]:
+                    cfg: PathConfig) -> tuple[np.ndarray, np.ndarray]:
     """Cost and allowed mask, (len(before), len(now)) each, of going from the chain rows
     ``before`` at K index ``i`` to the chain rows ``now`` at ``i + 1``."""
     same = before[:, None] == now[None, :]
@@ -185,7 +153,7 @@ def transition_cost(grid: SweepGrid, before: np.ndarray, now: np.ndarray, i: int
     return np.where(allowed, cost, cost + cfg.break_penalty), allowed
 
 
-def tracking_path(sweep: dict[str, np.ndarray], cfg: TrackingConfig | None = None) -> dict:
+def tracking_path(sweep: dict[str, np.ndarray], cfg: PathConfig | None = None) -> dict:
     """The branch-continuous path through the sweep's converged states over the K grid.
 
     Returns a dict with ``K`` (n_k,), ``angles`` (n_k, 4) [rad], ``O`` (n_k,) the sweep's
@@ -193,7 +161,7 @@ def tracking_path(sweep: dict[str, np.ndarray], cfg: TrackingConfig | None = Non
     (n_k - 1,) the angle change between neighbouring points [rad] and ``breaks`` the
     number of transitions that break the continuity rules (0 on a dense sweep).
     """
-    cfg = cfg or TrackingConfig()
+    cfg = cfg or PathConfig()
     grid = sweep_grid(sweep)
     n_k = grid.k_grid.size
     cands = []
@@ -202,21 +170,11 @@ def tracking_path(sweep: dict[str, np.ndarray], cfg: TrackingConfig | None = Non
         if rows.size == 0:
             raise ValueError(f'no converged sweep point at K = {grid.k_grid[i]:.4g}')
         cands.append(rows[np.argsort(grid.O[rows, i], kind='stable')[::-1][:cfg.candidates]])
-    score = grid.O[cands[0], 0].copy()  # best total ending at each candidate
-    back, ok = [], []
-    for i in range(1, n_k):
-        cost, allowed = transition_cost(grid, cands[i - 1], cands[i], i - 1, cfg)
-        total = score[:, None] - cost  # (before, now)
-        j = total.argmax(axis=0)
-        back.append(j)
-        ok.append(allowed[j, np.arange(j.size)])
-        score = grid.O[cands[i], i] + total.max(axis=0)
-    pick = [int(np.argmax(score))]
-    breaks = 0
-    for i in range(n_k - 1, 0, -1):
-        breaks += int(not ok[i - 1][pick[-1]])
-        pick.append(int(back[i - 1][pick[-1]]))
-    pick.reverse()
+    # (cost, allowed) of every step from K index i - 1 to i
+    steps = [None] + [transition_cost(grid, cands[i - 1], cands[i], i - 1, cfg)
+                      for i in range(1, n_k)]
+    pick = best_path([grid.O[cands[i], i] for i in range(n_k)], lambda i: steps[i][0])
+    breaks = sum(int(not steps[i][1][pick[i - 1], pick[i]]) for i in range(1, n_k))
     rows = np.array([cands[i][p] for i, p in enumerate(pick)])
     angles = grid.angles[rows]
     return {'K': grid.k_grid.copy(), 'angles': angles, 'O': grid.O[rows, np.arange(n_k)],
@@ -294,28 +252,26 @@ def continuation_check(k_grid: np.ndarray, angles: np.ndarray,
 
 @dataclass(frozen=True)
 class RefineConfig:
-    """Settings of the compass search along the tracking path (angles in radians).
-
-    Attributes
-    ----------
-    first_step, min_step
-        First and smallest compass step; a step is halved when no neighbour is better.
-    max_iterations
-        Compass iterations (all K points move at once, batched).
-    cap, chunk
-        Round-trip cap of one steady-state run, and round trips between checks.
-    tolerance
-        Largest relative difference between the refined O and the O found by
-        continuation (either direction) for a refined point to be kept; other points go
-        back to the unrefined path.
-    """
+    """Settings of the compass search along the tracking path (angles in radians)."""
 
     first_step: float = 0.04
+    """First compass step; a step is halved when no neighbour is better."""
     min_step: float = 0.005
+    """Smallest compass step."""
     max_iterations: int = 30
+    """Compass iterations (all K points move at once, batched)."""
     cap: int = 150
+    """Round-trip cap of one steady-state run."""
     chunk: int = 5
+    """Round trips between two steady-state checks."""
     tolerance: float = 1e-3
+    """Largest relative difference between the refined O and the O found by continuation
+    (either direction) for a refined point to be kept; other points go back to the
+    unrefined path."""
+
+    def __post_init__(self) -> None:
+        checks.positive(self, 'first_step', 'min_step', 'tolerance')
+        checks.counts(self, 'max_iterations', 'cap', 'chunk')
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -335,31 +291,12 @@ def refine_path(k_grid: np.ndarray, angles: np.ndarray, cavity_cfg: CavityConfig
     cfg = cfg or RefineConfig()
     n_k = k_grid.size
     start = continuation_check(k_grid, angles, cavity_cfg)
-    best_o, best_u, best_v = start['O_up'].copy(), start['u_up'].copy(), start['v_up'].copy()
-    best_a = np.asarray(angles, float).copy()
-    step = np.full(n_k, cfg.first_step)
-    directions = np.concatenate([np.eye(4), -np.eye(4)])  # (8, 4)
-    lanes = np.arange(n_k)
-    iterations = 0
-    while (step >= cfg.min_step).any() and iterations < cfg.max_iterations:
-        iterations += 1
-        trial = best_a[:, None, :] + step[:, None, None] * directions  # (n_k, 8, 4)
-        cavity = Cavity(cavity_cfg, batch=8 * n_k, angles=trial.reshape(-1, 4),
-                        birefringence=np.repeat(k_grid, 8))
-        cavity.set_fields(np.repeat(best_u, 8, axis=0), np.repeat(best_v, 8, axis=0))
-        result = run_to_steady(cavity, cfg.cap, cfg.chunk)
-        score = np.where(result.converged & result.finite, result.O, -np.inf).reshape(n_k, 8)
-        u, v = cavity.fields()
-        j = score.argmax(axis=1)
-        better = (score[lanes, j] > best_o + 1e-7) & (step >= cfg.min_step)
-        rows = lanes * 8 + j
-        best_a[better] = trial[better, j[better]]
-        best_o[better] = score[better, j[better]]
-        best_u[better], best_v[better] = u[rows][better], v[rows][better]
-        step[~better] /= 2
-        if progress is not None:
-            progress(iterations, float(best_o.mean()), int((step >= cfg.min_step).sum()))
-    best_a = wrap_angles(best_a)
+    found = compass_search(angles, k_grid, start['O_up'], (start['u_up'], start['v_up']),
+                           cavity_cfg, first_step=cfg.first_step, min_step=cfg.min_step,
+                           max_iterations=cfg.max_iterations, cap=cfg.cap, chunk=cfg.chunk,
+                           wrap=False, progress=progress)
+    best_a, best_o = wrap_angles(found.angles), found.objective
+    iterations = found.iterations
     reverted = np.zeros(n_k, bool)
     for attempt in range(4):  # keep the points that continuation reproduces, both ways
         check = continuation_check(k_grid, best_a, cavity_cfg)
@@ -374,114 +311,19 @@ def refine_path(k_grid: np.ndarray, angles: np.ndarray, cavity_cfg: CavityConfig
             'reverted': reverted, 'iterations': iterations}
 
 
-# -- closed-loop check ------------------------------------------------------------------------
-
-#: The drift scenarios of the closed-loop check: name -> (scenario, parameters).
-CHECK_SCENARIOS: dict[str, tuple[str, dict]] = {
-    'sinusoidal': ('sinusoidal', {'amplitude': 0.25, 'period': 10000.0}),
-    'random_walk_11': ('random_walk', {'sigma': 0.1, 'correlation_time': 2000.0, 'seed': 11}),
-    'random_walk_12': ('random_walk', {'sigma': 0.1, 'correlation_time': 2000.0, 'seed': 12}),
-    'chirp': ('chirp', {}),
-    'steps': ('steps', {'times': [5000.0, 10000.0, 15000.0], 'values': [0.2, -0.2, 0.1]}),
-}
-
-
-def closed_loop_check(tables: dict[str, np.ndarray], envelope: dict[str, np.ndarray],
-                      scenarios: dict[str, tuple[str, dict]] | None = None,
-                      round_trips: int = 20000, initial_seed: int = 1,
-                      cavity_cfg: CavityConfig | None = None,
-                      progress: Callable[[str], None] | None = None) -> dict:
-    """Closed-loop runs of table controllers against the envelope O*(K).
-
-    ``tables`` maps a name to angles: (4,) runs a fixed-angle controller, (n_k, 4) an
-    oracle controller over ``envelope['K']`` (true K to the nearest grid point's angles).
-    Every run starts from :func:`random_initial_angles` of ``initial_seed``.
-    Returns ``{scenario: {name: {oracle_ratio, locked_fraction, acquisition_round_trips}}}``.
-    """
-    from dlmpc_ros.control.baselines import FixedBestController, OracleController
-    from dlmpc_ros.core.drift import make_scenario
-    from dlmpc_ros.evaluation.closed_loop import random_initial_angles, run_closed_loop
-    from dlmpc_ros.evaluation.metrics import run_metrics
-
-    out: dict[str, dict] = {}
-    for label, (kind, params) in (scenarios or CHECK_SCENARIOS).items():
-        out[label] = {}
-        for name, table in tables.items():
-            table = np.asarray(table, float)
-            controller = (FixedBestController(table) if table.ndim == 1
-                          else OracleController(envelope['K'], table))
-            record = run_closed_loop(controller, make_scenario(kind, **params), round_trips,
-                                     initial_angles=random_initial_angles(initial_seed),
-                                     cavity_config=cavity_cfg)
-            m = run_metrics(record, envelope)
-            out[label][name] = {key: m[key] for key in (
-                'oracle_ratio', 'locked_fraction', 'acquisition_round_trips')}
-            if progress is not None:
-                progress(f'{label} {name}: O/O* {m["oracle_ratio"]:.3f}')
-    return out
-
-
-# -- files ------------------------------------------------------------------------------------
-
-def save_baselines(path: Path, arrays: dict[str, np.ndarray], meta: dict) -> Path:
-    """Write ``arrays`` to ``path`` (.npz, plain arrays only) and ``meta`` beside it
-    (.json)."""
-    path = Path(path)
-    missing = [k for k in REQUIRED_KEYS if k not in arrays]
-    if missing:
-        raise ValueError(f'baselines lack {missing}')
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + '.tmp.npz')
-    np.savez(tmp, **{k: np.asarray(v) for k, v in arrays.items()})
-    tmp.replace(path)
-    path.with_suffix('.json').write_text(json.dumps(meta, indent=2, default=float))
-    return path
-
-
-def read_npz(path: Path, what: str, hint: str) -> dict[str, np.ndarray]:
-    """Every array of a plain .npz file (no pickles are loaded).
-
-    Raises FileNotFoundError when it is missing and ValueError when it cannot be read; both
-    name ``what`` the file is and end with ``hint`` (how to make it)."""
-    path = Path(path)
-    if not path.is_file():
-        verb = 'are' if what.endswith('s') else 'is'
-        raise FileNotFoundError(f'{what} {path} {verb} missing; {hint}')
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            return {k: data[k] for k in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile) as err:
-        raise ValueError(f'{what} {path} cannot be read ({err}); {hint}') from None
-
-
-def load_baselines(path: Path) -> dict[str, np.ndarray]:
-    """The baseline tables of ``path`` (models/oracle.npz) as a dict of arrays.
-
-    Raises FileNotFoundError when the file is missing and ValueError when it cannot be
-    read or lacks one of :data:`REQUIRED_KEYS`; both say to run ``dlmpc-train baselines``.
-    """
-    path = Path(path)
-    hint = 'run `dlmpc-train baselines` to make it'
-    arrays = read_npz(path, 'baseline tables', hint)
-    missing = [k for k in REQUIRED_KEYS if k not in arrays]
-    if missing:
-        raise ValueError(f'baseline tables {path} lack {missing} (an older or foreign file); '
-                         f'{hint}')
-    return arrays
-
-
-# -- the training stage -----------------------------------------------------------------------
+# -- all tables ------------------------------------------------------------------------------
 
 def build_baselines(sweep: dict[str, np.ndarray], envelope: dict[str, np.ndarray],
                     cavity_cfg: CavityConfig | None = None,
-                    tracking_cfg: TrackingConfig | None = None,
+                    path_cfg: PathConfig | None = None,
                     refine_cfg: RefineConfig | None = None,
                     progress: Callable[[str], None] | None = None) -> dict[str, np.ndarray]:
-    """All baseline tables over the envelope's K grid (see :func:`train_baselines_stage`)."""
+    """All baseline tables over the envelope's K grid, as the arrays of
+    ``models/oracle.npz``; ``refine_cfg`` None skips the refinement."""
     say = progress or (lambda text: None)
     k_grid = envelope['K']
     fixed = fixed_best_angles(sweep)
-    path = tracking_path(sweep, tracking_cfg)
+    path = tracking_path(sweep, path_cfg)
     if path['K'].shape != k_grid.shape or not np.allclose(path['K'], k_grid):
         raise ValueError('the sweep and the oracle envelope have different K grids; run '
                          '`dlmpc-data oracle` again')
@@ -568,59 +410,3 @@ def summarize(arrays: dict[str, np.ndarray]) -> dict:
     return out
 
 
-def train_baselines_stage(paths, quick: bool = False, cavity_cfg: CavityConfig | None = None,
-                          show_progress: bool = True) -> dict:
-    """``dlmpc-train baselines``: build the tables from ``data/sweep`` and
-    ``data/oracle.npz``, run the closed-loop check, write ``models/oracle.npz`` and
-    ``models/oracle.json``; returns the stage's metrics.
-
-    ``paths`` is a :class:`dlmpc_ros.learning.pipeline.Paths`. ``quick`` (tests) skips the
-    refinement and checks one scenario for 1,000 round trips.
-    """
-    from dlmpc_ros.learning import shards
-    from dlmpc_ros.learning.oracle import load_envelope
-
-    started = time.monotonic()
-
-    def say(text: str) -> None:
-        if show_progress:
-            print(f'baselines: {text}', flush=True)
-
-    envelope = load_envelope(paths.oracle)
-    sweep = shards.load_dataset(paths.sweep)
-    tracking_cfg = TrackingConfig()
-    refine_cfg = None if quick else RefineConfig()
-    arrays = build_baselines(sweep, envelope, cavity_cfg, tracking_cfg, refine_cfg, say)
-    summary = summarize(arrays)
-    tables = {'oracle_pointwise': arrays['angles'], 'oracle_tracking': arrays['tracking_angles'],
-              'fixed_best': arrays['fixed_best_angles']}
-    if 'tracking_refined_angles' in arrays:
-        tables['oracle_tracking_refined'] = arrays['tracking_refined_angles']
-    scenarios = dict(list(CHECK_SCENARIOS.items())[:1]) if quick else CHECK_SCENARIOS
-    round_trips = 1000 if quick else 20000
-    check = closed_loop_check(tables, envelope, scenarios, round_trips, 1, cavity_cfg, say)
-    meta = {
-        'schema_version': SCHEMA_VERSION,
-        'made_by': 'dlmpc-train baselines (dlmpc_ros.learning.baselines)',
-        'how': ('fixed_best: the sweep chain with the highest worst-case steady O over K '
-                '(non-converged = 0). tracking: dynamic program over the K grid through the '
-                'top sweep states per K, maximizing sum O - jump_penalty * angle change - '
-                'switch_penalty per change of chain; a change of chain only between states '
-                'converged at both K with equal pulse counts and angles within max_jump. '
-                'tracking_refined: per-K compass search on the steady O warm-started from '
-                'the path\'s continuation state, kept where continuation up and down '
-                'reproduces it. angles / O_star: copied from the oracle envelope.'),
-        'sweep_fingerprint': shards.metadata(paths.sweep).get('fingerprint'),
-        'oracle_envelope': str(paths.oracle),
-        'tracking_settings': tracking_cfg.to_dict(),
-        'refine_settings': None if refine_cfg is None else refine_cfg.to_dict(),
-        'closed_loop_check': {'round_trips': round_trips, 'initial_angles_seed': 1,
-                              'scenarios': dict(scenarios)},
-        'quick': quick,
-    }
-    metrics = {**summary, 'closed_loop': check, 'quick': quick,
-               'wall_seconds': round(time.monotonic() - started, 1)}
-    meta.update({'summary': summary, 'closed_loop': check,
-                 'wall_seconds': metrics['wall_seconds']})
-    save_baselines(paths.models_dir / 'oracle.npz', arrays, meta)
-    return metrics

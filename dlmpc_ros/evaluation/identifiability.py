@@ -16,20 +16,20 @@ apart:
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 from torch import nn
 
-from dlmpc_ros.learning.features import Normalizer, features
+from dlmpc_ros.core import checks
+from dlmpc_ros.learning.features import Normalizer, features, measurements
 from dlmpc_ros.learning.fit import fit
-
-if TYPE_CHECKING:
-    from dlmpc_ros.learning.pipeline import Paths
+from dlmpc_ros.learning.seeding import reset_linear_layers
+from dlmpc_ros.learning.vae import ConditionalVAE, steady_windows, surrogate_of, windows
 
 #: Surrogate of single measurements: (N, 6) ``(E, M, 4 angles)`` -> (N,).
 SurrogateFn = Callable[[np.ndarray], np.ndarray]
@@ -74,12 +74,22 @@ class ProbeConfig:
     """A supervised probe: MLP from one measurement's features to K (comparison only)."""
 
     hidden: int = 128
+    """Units of its two hidden layers."""
     epochs: int = 40
+    """Passes over the training samples."""
     batch: int = 256
+    """Samples per Adam step."""
     lr: float = 1e-3
+    """Adam learning rate."""
     seed: int = 0
+    """Seed of the initial weights, the sample order and the sweep's splits."""
     window: int = 16
     """Length of the windowed probe on the trajectories [control periods]."""
+
+    def __post_init__(self) -> None:
+        checks.counts(self, 'hidden', 'epochs', 'batch', 'window')
+        checks.counts(self, 'seed', minimum=0)
+        checks.positive(self, 'lr')
 
 
 #: Feature columns of :func:`features` each probe reads.
@@ -93,14 +103,14 @@ def probe_r(measured: np.ndarray, k: np.ndarray, train: np.ndarray, norm: Normal
     measured: (N, 6), or (N, w, 6) windows (K of the last row); k: (N,) true K; train: (N,)
     booleans.
     """
-    torch.manual_seed(config.seed)
     x = features(torch.as_tensor(measured, dtype=torch.float64), norm)[..., PROBE_INPUTS[inputs]]
     x = x.flatten(1).float()
     scale = float(np.std(k[train])) or 1.0
     y = torch.as_tensor(k / scale, dtype=torch.float32)
-    net = nn.Sequential(nn.Linear(x.shape[1], config.hidden), nn.ReLU(),
-                        nn.Linear(config.hidden, config.hidden), nn.ReLU(),
-                        nn.Linear(config.hidden, 1))
+    net = reset_linear_layers(nn.Sequential(nn.Linear(x.shape[1], config.hidden), nn.ReLU(),
+                                            nn.Linear(config.hidden, config.hidden), nn.ReLU(),
+                                            nn.Linear(config.hidden, 1)),
+                              torch.Generator().manual_seed(config.seed))
     data = torch.cat([x, y[:, None]], dim=1)[torch.as_tensor(np.flatnonzero(train))]
 
     def loss(batch: torch.Tensor, _generator) -> tuple[torch.Tensor, dict]:
@@ -124,33 +134,26 @@ def probe_table(measured: np.ndarray, k: np.ndarray, train: np.ndarray, norm: No
 
 # -- the check on shipped models and datasets -----------------------------------------------
 
-def check_estimator(paths: Paths, out_dir: Path, config: ProbeConfig = ProbeConfig(),
-                    show_progress: bool = True) -> dict:
-    """Run every check on the models and data of ``paths``; write ``metrics.json``,
-    ``report.md`` and ``surrogate_sources.png`` into ``out_dir``."""
-    import json
-
-    from dlmpc_ros.learning import shards
-    from dlmpc_ros.learning.pipeline import load_vae, measured_array, surrogate_of
-    from dlmpc_ros.learning.trajectories import load_trajectories
-    from dlmpc_ros.learning.vae import steady_windows, windows
-
+def check_estimator(vae: ConditionalVAE, trajectories: dict[str, np.ndarray],
+                    sweep: dict[str, np.ndarray], out_dir: Path,
+                    config: ProbeConfig = ProbeConfig(), show_progress: bool = True) -> dict:
+    """Run every check on an estimator, the trajectories (with their ``held_out`` lanes)
+    and the sweep; write ``metrics.json``, ``report.md`` and ``surrogate_sources.png``
+    into ``out_dir``; returns the metrics."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    vae, _ = load_vae(paths.model('vae'))
 
     def surrogate(measured: np.ndarray) -> np.ndarray:
         return surrogate_of(vae, steady_windows(measured, vae.config.window))
 
-    traj = load_trajectories(paths.trajectories)
+    traj = trajectories
     held_out = traj['held_out']
-    lanes, steps = traj['K'].shape
-    traj_measured = measured_array(traj).reshape(-1, 6)
+    steps = traj['K'].shape[1]
+    traj_measured = measurements(traj).reshape(-1, 6)
     traj_k = traj['K'].reshape(-1)
     traj_train = np.repeat(~held_out, steps)
-    sweep = shards.load_dataset(paths.sweep)
     steady = sweep['converged'] & sweep['finite']
-    sweep_measured, sweep_k = measured_array(sweep)[steady], sweep['K'][steady]
+    sweep_measured, sweep_k = measurements(sweep)[steady], sweep['K'][steady]
     sweep_train = np.random.default_rng(config.seed).random(sweep_k.size) < 0.8
     # the same share of whole angle sets (chains) held out: K at angles never seen in training
     chain = sweep['chain'][steady]
@@ -165,7 +168,7 @@ def check_estimator(paths: Paths, out_dir: Path, config: ProbeConfig = ProbeConf
         print('surrogate |r|:', {k: round(v, 3) for k, v in sources.items()}, flush=True)
     pulsed = sweep['pulses'][steady] >= 1
     w = config.window
-    traj_windows = windows(measured_array(traj), w)  # (lanes * (steps - w + 1), w, 6)
+    traj_windows = windows(measurements(traj), w)  # (lanes * (steps - w + 1), w, 6)
     window_train = np.repeat(~held_out, steps - w + 1)
     probes = {'trajectories': probe_table(traj_measured, traj_k, traj_train, norm,
                                           {'all samples': np.ones(traj_k.size, bool)}, config),
@@ -182,7 +185,7 @@ def check_estimator(paths: Paths, out_dir: Path, config: ProbeConfig = ProbeConf
     if show_progress:
         print('probe |r|:', json.dumps(probes), flush=True)
     result = {'surrogate_abs_r': sources, 'supervised_probe_abs_r': probes,
-              'probe_config': config.__dict__,
+              'probe_config': asdict(config),
               'samples': {'trajectories_held_out': int((~traj_train).sum()),
                           'sweep': int(sweep_k.size), 'sweep_pulsed': int(pulsed.sum())}}
     (out_dir / 'metrics.json').write_text(json.dumps(result, indent=1))

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from dlmpc_ros.learning.checkpoint import fingerprint_arrays
+from dlmpc_ros.core.fingerprint import fingerprint_arrays
 
 
 def shard_path(directory: Path, index: int) -> Path:

@@ -22,13 +22,15 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
+from dlmpc_ros.core import checks
+from dlmpc_ros.core.angles import wrap_angles
 from dlmpc_ros.core.cavity import Cavity
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.drift import make_scenario
-from dlmpc_ros.learning import shards
-from dlmpc_ros.learning.oracle import envelope_angles
-from dlmpc_ros.learning.sweep import wrap_angles
+from dlmpc_ros.learning.tables import envelope_angles
+from dlmpc_ros.training import shards
 
 
 @dataclass(frozen=True)
@@ -36,15 +38,34 @@ class TrajectoryConfig:
     """Settings of the trajectory generation (periods and times in round trips)."""
 
     train_lasers: int = 64
+    """Lasers whose rows train the models."""
     test_lasers: int = 16
+    """Held-out lasers (validation and test)."""
     round_trips: int = 20000
+    """Round trips per laser."""
     period: int = 10
+    """Control period P: one row per P round trips."""
     p_retarget: float = 0.06
+    """Chance per period of a new target near the oracle angles of the current K."""
     p_random: float = 0.01
+    """Chance per period of uniformly random angles."""
     target_sigma: float = 0.12
+    """Spread of a new target around the oracle angles [rad]."""
     dither_sigma: float = 0.01
+    """Dither added to the target every period [rad]."""
     segment_periods: int = 500
+    """Periods per shard (the unit of resuming)."""
     seed: int = 0
+    """Seed of the angle policy and of the lanes' drift seeds."""
+
+    def __post_init__(self) -> None:
+        checks.counts(self, 'round_trips', 'period', 'segment_periods')
+        checks.counts(self, 'train_lasers', 'test_lasers', 'seed', minimum=0)
+        if self.train_lasers + self.test_lasers < 1:
+            raise ValueError('TrajectoryConfig needs at least one laser')
+        checks.non_negative(self, 'p_retarget', 'p_random', 'target_sigma', 'dither_sigma')
+        if self.p_retarget + self.p_random > 1:
+            raise ValueError('TrajectoryConfig.p_retarget + p_random must be <= 1')
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -80,8 +101,6 @@ def generate_trajectories(directory: Path, envelope: dict[str, np.ndarray],
                           cavity_cfg: CavityConfig, cfg: TrajectoryConfig,
                           show_progress: bool = True) -> dict:
     """Run (or resume) trajectory generation into ``directory``; returns its metadata."""
-    from tqdm import tqdm
-
     directory = Path(directory)
     shards.check_metadata(directory, {'trajectories': cfg.to_dict(),
                                       'cavity': cavity_cfg.to_dict()})

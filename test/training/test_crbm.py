@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import torch
 
-from dlmpc_ros.learning.crbm import CRBM, CRBMTrainConfig, pretrain_input_layers
+from dlmpc_ros.training.crbm import CRBM, CRBMTrainConfig, pretrain_input_layers
 from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
 
 B = 2  # window rows

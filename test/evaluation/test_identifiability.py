@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from dlmpc_ros.learning.features import Normalizer
-from dlmpc_ros.learning.identifiability import ProbeConfig, abs_r, probe_r, surrogate_sources
+from dlmpc_ros.evaluation.identifiability import ProbeConfig, abs_r, probe_r, surrogate_sources
 
 
 def _measurements(k: np.ndarray, angles_follow_k: bool, rng) -> np.ndarray:

@@ -30,13 +30,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING
 
 import torch
 from torch import nn
 
-if TYPE_CHECKING:  # no runtime import: mprnn imports this module
-    from dlmpc_ros.learning.mprnn import MPRNN
+from dlmpc_ros.core import checks
+from dlmpc_ros.learning.mprnn import MPRNN
 
 Progress = Callable[[str, int, float], None]
 
@@ -63,13 +62,14 @@ class CRBMTrainConfig:
     """Seed of the initialization, the hidden samples and the mini-batch order."""
 
     def __post_init__(self) -> None:
-        for name in ('epochs', 'batch_size'):
-            if getattr(self, name) < 1:
-                raise ValueError(f'CRBMTrainConfig.{name} must be >= 1')
-        if self.lr <= 0:
-            raise ValueError('CRBMTrainConfig.lr must be > 0')
-        if self.max_samples is not None and self.max_samples < 1:
-            raise ValueError('CRBMTrainConfig.max_samples must be >= 1 or None')
+        checks.counts(self, 'epochs', 'batch_size')
+        checks.counts(self, 'seed', minimum=0)
+        checks.positive(self, 'lr', 'init_std')
+        checks.non_negative(self, 'weight_decay')
+        if not 0 <= self.momentum < 1:
+            raise ValueError(f'CRBMTrainConfig.momentum must be in [0, 1), got {self.momentum!r}')
+        if self.max_samples is not None:
+            checks.counts(self, 'max_samples')
 
     def to_dict(self) -> dict:
         return asdict(self)

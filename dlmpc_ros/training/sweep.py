@@ -18,16 +18,17 @@ import time
 import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
-
 from pathlib import Path
 
 import numpy as np
 from scipy.stats import qmc
 from tqdm import tqdm
 
+from dlmpc_ros.core import checks
+from dlmpc_ros.core.angles import wrap_angles
 from dlmpc_ros.core.cavity import Cavity
 from dlmpc_ros.core.config import BIREFRINGENCE_RANGE, CavityConfig
-from dlmpc_ros.learning import shards
+from dlmpc_ros.training import shards
 
 FIELDS = ('chain', 'K', 'alpha', 'E', 'M', 'O', 'energy', 'peak', 'pulses', 'converged',
           'finite', 'round_trips')
@@ -35,41 +36,36 @@ FIELDS = ('chain', 'K', 'alpha', 'E', 'M', 'O', 'energy', 'peak', 'pulses', 'con
 
 @dataclass(frozen=True)
 class SweepConfig:
-    """Settings of the steady-state sweep.
-
-    Attributes
-    ----------
-    sobol_sets
-        Space-filling angle sets (rounded up to a power of two by Sobol balance rules).
-    refine_sets
-        Angle sets drawn around the best ones found by the Sobol phase.
-    refine_sigma
-        Standard deviation of the refinement perturbation [rad].
-    k_points
-        K grid points over [-0.3, 0.3] per chain.
-    first_cap, cap
-        Round-trip caps of a chain's first point (cold start from sech) and of the
-        following, warm-started points.
-    chunk
-        Round trips between two steady-state checks.
-    batch
-        Lasers simulated at once.
-    chains_per_shard
-        Chains stored per shard file.
-    seed
-        Seed of the Sobol scrambling and the refinement draws.
-    """
+    """Settings of the steady-state sweep."""
 
     sobol_sets: int = 1280
+    """Space-filling angle sets (a multiple of ``chains_per_shard``)."""
     refine_sets: int = 384
+    """Angle sets drawn around the best ones found by the Sobol phase."""
     refine_sigma: float = 0.08
+    """Standard deviation of the refinement perturbation [rad]."""
     k_points: int = 61
+    """K grid points over [-0.3, 0.3] per chain."""
     first_cap: int = 300
+    """Round-trip cap of a chain's first point (a cold start from sech)."""
     cap: int = 100
+    """Round-trip cap of the following, warm-started points."""
     chunk: int = 5
+    """Round trips between two steady-state checks."""
     batch: int = 256
+    """Lasers simulated at once."""
     chains_per_shard: int = 128
+    """Chains stored per shard file."""
     seed: int = 0
+    """Seed of the Sobol scrambling and the refinement draws."""
+
+    def __post_init__(self) -> None:
+        checks.counts(self, 'sobol_sets', 'k_points', 'first_cap', 'cap', 'chunk', 'batch',
+                      'chains_per_shard')
+        checks.counts(self, 'refine_sets', 'seed', minimum=0)
+        checks.positive(self, 'refine_sigma')
+        if self.sobol_sets % self.chains_per_shard:
+            raise ValueError('SweepConfig.sobol_sets must be a multiple of chains_per_shard')
 
     def k_grid(self) -> np.ndarray:
         return np.linspace(*BIREFRINGENCE_RANGE, self.k_points)
@@ -92,11 +88,6 @@ def refine_angles(best: np.ndarray, count: int, sigma: float, seed: int) -> np.n
     rng = np.random.default_rng(seed + 1)
     picks = best[rng.integers(0, best.shape[0], count)]
     return wrap_angles(picks + sigma * rng.standard_normal(picks.shape))
-
-
-def wrap_angles(alpha: np.ndarray) -> np.ndarray:
-    """Angles wrapped into [-pi/2, pi/2) (the elements are pi-periodic)."""
-    return (alpha + math.pi / 2) % math.pi - math.pi / 2
 
 
 def run_chains(angle_sets: np.ndarray, chain_ids: np.ndarray, cfg: SweepConfig,
@@ -184,8 +175,6 @@ def generate_sweep(directory, cfg: SweepConfig, cavity_cfg: CavityConfig,
     per = cfg.chains_per_shard
     n_total = n_sobol + cfg.refine_sets
     n_shards = math.ceil(n_total / per)
-    if n_sobol % per:
-        raise ValueError('sobol_sets must be a multiple of chains_per_shard')
     done_shards = {i for i in range(n_shards) if shards.shard_path(directory, i).exists()}
     bar = tqdm(total=n_total * cfg.k_points, unit='pt', desc='steady-state sweep',
                disable=not show_progress, smoothing=0.05,

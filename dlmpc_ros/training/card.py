@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from dlmpc_ros.learning.pipeline import Paths
+from dlmpc_ros.training.workspace import Workspace
 
 TARGETS = {
     'vae': ('abs_pearson_r_heldout', '>= 0.95',
@@ -19,23 +19,23 @@ EXTRA_ROWS = (('kmap', 'oracle_ratio_from_median_state',
                'same over all 61 K, surrogate read at the sweep\'s median state for each K'),)
 
 
-def _data_meta(paths: Paths) -> dict:
+def _data_meta(ws: Workspace) -> dict:
     out = {}
-    for name, directory in (('sweep', paths.sweep), ('trajectories', paths.trajectories),
-                            ('trajectories_extra', paths.extra_trajectories)):
+    for name, directory in (('sweep', ws.sweep), ('trajectories', ws.trajectories),
+                            ('trajectories_extra', ws.extra_trajectories)):
         meta = directory / 'metadata.json'
         if meta.exists():
             out[name] = json.loads(meta.read_text())
-    oracle_meta = paths.oracle.with_suffix('.json')
+    oracle_meta = ws.oracle.with_suffix('.json')
     if oracle_meta.exists():
         out['oracle'] = json.loads(oracle_meta.read_text())
     return out
 
 
-def write_model_card(paths: Paths) -> Path:
-    metrics_path = paths.models_dir / 'metrics.json'
-    metrics = json.loads(metrics_path.read_text()) if metrics_path.exists() else {}
-    data = _data_meta(paths)
+def write_model_card(ws: Workspace) -> Path:
+    """Write ``models/MODEL_CARD.md`` from ``models/metrics.json`` and the datasets' notes."""
+    metrics = json.loads(ws.metrics.read_text()) if ws.metrics.exists() else {}
+    data = _data_meta(ws)
     lines = ['# dlmpc_ros model card', '',
              'Made by `dlmpc-data all` then `dlmpc-train all` (seed 0) on a 2-core CPU '
              'machine; `make models` runs both. Files load with `torch.load(weights_only=True)` '
@@ -94,6 +94,6 @@ def write_model_card(paths: Paths) -> Path:
     lines += ['', '## Full metrics', '', '```json', json.dumps(
         {k: {kk: vv for kk, vv in v.items() if not kk.startswith('per_k')}
          for k, v in metrics.items()}, indent=1, default=float)[:20000], '```', '']
-    path = paths.models_dir / 'MODEL_CARD.md'
+    path = ws.models_dir / 'MODEL_CARD.md'
     path.write_text('\n'.join(lines))
     return path

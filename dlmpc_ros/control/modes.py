@@ -1,0 +1,266 @@
+"""The DL-MPC's modes: one object per way of choosing the next angles, with one verb.
+
+The supervisor (:class:`~dlmpc_ros.control.dlmpc.DLMPCController`) asks its modes in
+priority order, each period, ``decide(period)``; the first that returns a
+:class:`Decision` acts, and the modes after it are told to ``stand_down`` (they were not
+asked, and must drop what they had under way). A mode that returns None passes. The
+modes, highest priority first:
+
+- :class:`AcquireMode` (``acquire``): the lock acquisition scan while the laser is off
+  its pulse (:mod:`~dlmpc_ros.control.acquisition`);
+- :class:`TrackMode` (``track``): the curve tracker once locked
+  (:mod:`~dlmpc_ros.control.tracking`);
+- :class:`OuterLoop` (``outer``): MP-RNN planning while the predictor has been accurate
+  (:mod:`~dlmpc_ros.control.planner`);
+- :class:`InnerLoop` (``inner``): the estimator's surrogate through the K-to-angles map;
+- :class:`HoldMode` (``hold``): keep the angles (no surrogate: a silent estimator).
+
+:class:`PredictionMonitor` keeps the MP-RNN's history and scores its one-step forecasts in
+every period; the outer loop reads it.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+import torch
+
+from dlmpc_ros.control.acquisition import LockSupervisor
+from dlmpc_ros.control.planner import PlanProblem, solve_plan
+from dlmpc_ros.control.tracking import CurveTracker
+from dlmpc_ros.learning.mprnn import MPRNN
+
+if TYPE_CHECKING:  # for annotations only: dlmpc builds the modes
+    from dlmpc_ros.control.dlmpc import DLMPCConfig
+
+
+@dataclass(frozen=True)
+class Period:
+    """What the supervisor knows in one control period."""
+
+    current: np.ndarray
+    """(4,) angles applied during the period [rad]."""
+    objective: float
+    """Measured O = E / M (NaN where M <= 0)."""
+    surrogate: float
+    """The estimator's K surrogate for the measurement (NaN: none)."""
+    previous_mode: str
+    """The mode that acted in the period before ('' at the start)."""
+
+
+@dataclass(frozen=True)
+class Decision:
+    """A mode's choice for the next period (the supervisor applies the servo limits)."""
+
+    angles: np.ndarray
+    """(4,) wanted angles [rad]."""
+    mode: str
+    """Name of the mode that decided."""
+    surrogate: float | None = None
+    """The estimate to report (None: the period's surrogate)."""
+    predicted_objective: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """(N,) predicted O over the horizon (the outer loop's plans only)."""
+    iterations: int = 0
+    """Plan iterations (the outer loop's plans only)."""
+    predicted_next: torch.Tensor | None = None
+    """(2,) normalized state the plan predicts for the end of the next period."""
+
+
+class Mode(Protocol):
+    """One way of choosing the angles."""
+
+    name: str
+
+    def decide(self, period: Period) -> Decision | None:
+        """The angles for the next period, or None to pass to the next mode."""
+
+    def stand_down(self) -> None:
+        """A mode before this one acted: drop what was under way."""
+
+
+class PredictionMonitor:
+    """The MP-RNN's view of the run: its feature history and its one-step accuracy.
+
+    Each period :meth:`observe` adds the period's features and scores the forecast
+    made for it (:meth:`expect`); the number of plan iterations grows by one after an
+    accurate forecast and shrinks after a poor one.
+    """
+
+    def __init__(self, model: MPRNN, config: DLMPCConfig) -> None:
+        self.model = model
+        self.config = config
+        self.history: deque[torch.Tensor] = deque(maxlen=model.min_history())
+        self.errors: deque[float] = deque(maxlen=config.error_memory)
+        self.iterations = config.start_iterations
+        self._expected: torch.Tensor | None = None   # (2,) v forecast for this period
+
+    def observe(self, x: torch.Tensor) -> float:
+        """Add the period's features (10,); returns the error of the forecast made for
+        them (RMS over the normalized states; NaN when there was none)."""
+        self.history.append(x)
+        if self._expected is None:
+            return float('nan')
+        error = float(torch.sqrt(((self._expected - x[:2]) ** 2).mean()))
+        self.errors.append(error)
+        cfg = self.config
+        if error < cfg.accurate_error:
+            self.iterations = min(cfg.max_iterations, self.iterations + 1)
+        else:
+            self.iterations = max(cfg.min_iterations, self.iterations - 1)
+        return error
+
+    def expect(self, v_next: torch.Tensor | None) -> None:
+        """The forecast (2,) of the next period's normalized state (None: no forecast)."""
+        self._expected = v_next
+
+    @property
+    def full(self) -> bool:
+        """Whether the history is as long as a prediction needs."""
+        return len(self.history) == self.history.maxlen
+
+    @property
+    def recent_error(self) -> float:
+        """Mean of the recent forecast errors (0 before the first)."""
+        return float(np.mean(self.errors)) if self.errors else 0.0
+
+    def history_batch(self) -> torch.Tensor:
+        """(1, N + 2b, 10) the history as the model's input."""
+        return torch.stack(list(self.history))[None]
+
+    def predict_next(self, angles: np.ndarray) -> torch.Tensor:
+        """The model's next normalized state (2,) if ``angles`` (4,) are held."""
+        plan = torch.as_tensor(angles, dtype=torch.float32).expand(
+            1, self.model.config.horizon, 4)
+        with torch.no_grad():
+            return self.model(self.history_batch(), plan).v[0, 0]
+
+
+class AcquireMode:
+    """Scan the map's curve while the measured O says the laser is off its pulse."""
+
+    name = 'acquire'
+
+    def __init__(self, supervisor: LockSupervisor) -> None:
+        self.supervisor = supervisor
+
+    def decide(self, period: Period) -> Decision | None:
+        scan = self.supervisor.step(period.objective, period.current, period.surrogate)
+        return None if scan is None else Decision(scan, self.name)
+
+    def stand_down(self) -> None:
+        """Nothing to drop: the scan restarts from its own counters."""
+
+
+class TrackMode:
+    """Hold the laser on the tracking curve and follow K along it by the measured O."""
+
+    name = 'track'
+
+    def __init__(self, tracker: CurveTracker) -> None:
+        self.tracker = tracker
+
+    def decide(self, period: Period) -> Decision | None:
+        on_curve = self.tracker.step(period.objective)
+        if on_curve is None:
+            return None
+        return Decision(on_curve, self.name, surrogate=self.tracker.estimate)
+
+    def stand_down(self) -> None:
+        self.tracker.interrupt()
+
+
+class OuterLoop:
+    """MP-RNN planning (receding horizon), while its recent forecasts were accurate.
+
+    Passes (and drops its plan) while the history is too short, the recent forecast
+    error is above ``config.error_threshold``, or the objective guard blocks it. With
+    ``config.apply_all`` a plan is played out over N periods before the next one.
+    """
+
+    name = 'outer'
+
+    def __init__(self, monitor: PredictionMonitor, config: DLMPCConfig) -> None:
+        self.monitor = monitor
+        self.config = config
+        self.plan: torch.Tensor | None = None             # (N, 4) remaining plan
+        self._queued: list[np.ndarray] = []               # apply_all: plan to play out
+        self._inner_objective: float | None = None        # O last measured after 'inner'
+        self._blocked = 0                                  # periods the guard still blocks
+
+    def decide(self, period: Period) -> Decision | None:
+        blocked = self._guard(period)
+        error, threshold = self.monitor.recent_error, self.config.error_threshold
+        if self._queued and error <= threshold and not blocked:
+            return Decision(self._queued.pop(0), self.name)
+        if not self.monitor.full or error > threshold or blocked:
+            self.stand_down()
+            return None
+        return self._solve(period)
+
+    def stand_down(self) -> None:
+        self.plan, self._queued = None, []
+
+    def _guard(self, period: Period) -> bool:
+        """Update the objective guard with this period's O; True: outer loop blocked."""
+        fraction = self.config.objective_guard
+        if fraction is None:
+            return False
+        if self._blocked > 0:
+            self._blocked -= 1
+        if period.previous_mode == InnerLoop.name and np.isfinite(period.objective):
+            self._inner_objective = period.objective
+        elif (period.previous_mode == self.name and self._inner_objective is not None
+              and not period.objective >= fraction * self._inner_objective):
+            self._blocked = self.config.guard_cooldown
+        return self._blocked > 0
+
+    def _solve(self, period: Period) -> Decision:
+        model = self.monitor.model
+        history = self.monitor.history_batch()                      # (1, N + 2b, 10)
+        if self.plan is None:
+            with torch.no_grad():
+                seed = model(history).u[0]                          # (N, 4) from the map
+        else:
+            seed = torch.cat([self.plan[1:], self.plan[-1:]])       # shift the old plan
+        result = solve_plan(model, PlanProblem(
+            history=history, seed=seed, current=period.current,
+            iterations=self.monitor.iterations, learning_rate=self.config.learning_rate,
+            trust_radius=self.config.trust_radius), self.config.limits)
+        self.plan = result.plan
+        if self.config.apply_all:
+            self._queued = [u.numpy() for u in result.plan[1:]]
+        return Decision(result.first, self.name, predicted_objective=result.predicted_objective,
+                        iterations=result.iterations, predicted_next=result.predicted_next)
+
+
+class InnerLoop:
+    """The estimator's surrogate through the K-to-angles map (passes without one)."""
+
+    name = 'inner'
+
+    def __init__(self, map_angles: Callable[[float], np.ndarray]) -> None:
+        self.map_angles = map_angles
+
+    def decide(self, period: Period) -> Decision | None:
+        if not np.isfinite(period.surrogate):
+            return None
+        return Decision(self.map_angles(period.surrogate), self.name)
+
+    def stand_down(self) -> None:
+        """Stateless."""
+
+
+class HoldMode:
+    """Keep the angles (the last resort: no surrogate)."""
+
+    name = 'hold'
+
+    def decide(self, period: Period) -> Decision:
+        return Decision(period.current, self.name)
+
+    def stand_down(self) -> None:
+        """Stateless."""

@@ -1,0 +1,104 @@
+"""What ``dlmpc-evaluate`` writes: each run's metrics beside its record, and the tables of
+all runs (``OUT/metrics.json``, ``OUT/table.md``)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from dlmpc_ros.evaluation.figures import surrogate_correlation
+from dlmpc_ros.evaluation.metrics import run_metrics
+from dlmpc_ros.evaluation.record import RunRecord
+
+TABLE_KEYS = ('oracle_ratio', 'oracle_controller_ratio', 'locked_fraction',
+              'acquisition_round_trips', 'recovery_round_trips_max', 'step_latency_ms_median',
+              'step_latency_ms_p99', 'track_estimate_abs_r')
+
+
+def measure(record: RunRecord, envelope: dict, run_dir: Path, **extra) -> dict:
+    """The run's metrics (plus ``extra``), saved with its record in ``run_dir``."""
+    metrics = {**run_metrics(record, envelope), **extra,
+               'surrogate_abs_r': surrogate_correlation(record),
+               'track_estimate_abs_r': surrogate_correlation(record, tracking=True)}
+    record.save(run_dir / 'record.npz')
+    (run_dir / 'metrics.json').write_text(json.dumps({**record.meta, **metrics}, indent=2))
+    return metrics
+
+
+def summary_line(metrics: dict) -> str:
+    """One line of a run's headline figures."""
+    def text(key: str, form: str) -> str:
+        value = metrics.get(key)
+        return 'n/a' if value is None else format(value, form)
+    return (f"oracle ratio {text('oracle_ratio', '.3f')}, locked "
+            f"{text('locked_fraction', '.3f')}, acquisition "
+            f"{text('acquisition_round_trips', 'd')}, latency median "
+            f"{text('step_latency_ms_median', '.2f')} ms")
+
+
+def markdown_table(rows: list[dict]) -> str:
+    """Every run, one row each, with the :data:`TABLE_KEYS`."""
+    head = ['scenario', 'seed', 'controller', *TABLE_KEYS]
+    lines = ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
+    for row in rows:
+        cells = [row['scenario'], str(row['seed']), row['controller']]
+        for key in TABLE_KEYS:
+            value = row['metrics'].get(key)
+            cells.append('-' if value is None else (f'{value:.3f}' if isinstance(value, float)
+                                                    else str(value)))
+        lines.append('| ' + ' | '.join(cells) + ' |')
+    return '\n'.join(lines) + '\n'
+
+
+def add_oracle_controller_ratio(runs: list[dict]) -> None:
+    """Add ``oracle_controller_ratio``: mean O over the mean O of the ``oracle``
+    controller's run on the same scenario and seed (when the oracle ran too). The envelope
+    O*(K) is the point-wise best over branches, which no controller holds; the oracle
+    controller's branch-continuous path is the best reached in closed loop."""
+    oracle = {(r['scenario'], r['seed']): r['metrics']['mean_O'] for r in runs
+              if r['controller'] == 'oracle'}
+    for run in runs:
+        reference = oracle.get((run['scenario'], run['seed']))
+        mean_o = run['metrics'].get('mean_O')
+        if reference and mean_o is not None:
+            run['metrics']['oracle_controller_ratio'] = mean_o / reference
+
+
+def seed_summary(runs: list[dict]) -> str:
+    """Markdown table of oracle_ratio per scenario (rows) and controller (columns): the
+    mean over seeds and, with several seeds, the range."""
+    scenarios = list(dict.fromkeys(r['scenario'] for r in runs))
+    controllers = list(dict.fromkeys(r['controller'] for r in runs))
+    lines = ['| scenario | ' + ' | '.join(controllers) + ' |',
+             '|---|' + '---|' * len(controllers)]
+    for scenario in scenarios:
+        cells = []
+        for controller in controllers:
+            values = [r['metrics']['oracle_ratio'] for r in runs
+                      if r['scenario'] == scenario and r['controller'] == controller
+                      and r['metrics'].get('oracle_ratio') is not None]
+            if not values:
+                cells.append('-')
+            elif len(values) == 1:
+                cells.append(f'{values[0]:.3f}')
+            else:
+                cells.append(f'{np.mean(values):.3f} ({min(values):.3f}-{max(values):.3f})')
+        lines.append(f'| {scenario} | ' + ' | '.join(cells) + ' |')
+    return '\n'.join(lines) + '\n'
+
+
+def write_summary(out: Path, runs: list[dict]) -> None:
+    """``OUT/metrics.json`` (every run) and ``OUT/table.md`` (per scenario and controller,
+    then every run)."""
+    add_oracle_controller_ratio(runs)
+    summary: dict = {'runs': runs}
+    if len(runs) == 1:
+        summary.update(runs[0]['metrics'])
+    (out / 'metrics.json').write_text(json.dumps(summary, indent=2))
+    seeds = len({r['seed'] for r in runs})
+    (out / 'table.md').write_text(
+        f'oracle_ratio (mean O / mean O*(K)), mean over {seeds} seed(s)'
+        + (' (min-max)' if seeds > 1 else '') + ':\n\n' + seed_summary(runs)
+        + '\nEvery run:\n\n' + markdown_table(runs))

@@ -1,0 +1,111 @@
+"""One closed-loop run of the evaluation matrix (scenario x seed x controller), in one
+process (``fast``) or through the node graph, described by a :class:`RunSpec`."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from dlmpc_ros.control.estimator import SurrogateEstimator
+from dlmpc_ros.control.factory import load_estimator, make_controller
+from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import Controller
+from dlmpc_ros.core import checks
+from dlmpc_ros.evaluation.closed_loop import random_initial_angles, run_closed_loop
+from dlmpc_ros.evaluation.presets import PRESETS, preset_scenario, run_settings
+from dlmpc_ros.evaluation.record import RunRecord
+
+#: How a run is executed.
+MODES = ('fast', 'graph-lockstep', 'graph-free-run')
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run of the matrix."""
+
+    scenario: str
+    """Drift preset (:data:`~dlmpc_ros.evaluation.presets.PRESETS`)."""
+    seed: int
+    """Seed of the random initial angles and of the random walk."""
+    controller: str
+    """Controller name (:data:`~dlmpc_ros.control.factory.CONTROLLERS`)."""
+    settings: dict = field(default_factory=dict)
+    """The scenario's settings (empty: the preset's)."""
+    round_trips: int = 20000
+    """Round trips of the run."""
+    period: int = 10
+    """Control period P [round trips]."""
+    max_step: float = 0.25
+    """Servo speed: largest angle change per period [rad]."""
+    measurement_noise: float = 0.0
+    """Relative Gaussian noise on the E and M the estimator and controller see (fast)."""
+    mode: str = 'fast'
+    """One of :data:`MODES`."""
+
+    def __post_init__(self) -> None:
+        if self.scenario not in PRESETS:
+            raise ValueError(f'RunSpec.scenario must be one of {tuple(PRESETS)}, '
+                             f'got {self.scenario!r}')
+        if self.mode not in MODES:
+            raise ValueError(f'RunSpec.mode must be one of {MODES}, got {self.mode!r}')
+        checks.counts(self, 'round_trips', 'period')
+        checks.positive(self, 'max_step')
+        checks.non_negative(self, 'measurement_noise')
+
+    @property
+    def run_settings(self) -> dict:
+        """The scenario settings the run uses (the random walk's seed filled in)."""
+        return run_settings(self.scenario, self.seed, self.settings or None)
+
+    def meta(self) -> dict:
+        """What the run's record and metrics say about it."""
+        return {'scenario': self.scenario, 'settings': self.run_settings,
+                'controller': self.controller, 'seed': self.seed,
+                'round_trips': self.round_trips, 'period': self.period, 'mode': self.mode,
+                'initial_angles': random_initial_angles(self.seed).tolist(),
+                'measurement_noise': self.measurement_noise}
+
+
+def run_fast(spec: RunSpec, models_dir: Path, controller: Controller | None = None,
+             estimator: SurrogateEstimator | None = None,
+             progress: Callable[[int], None] | None = None) -> RunRecord:
+    """The run in one process. ``controller`` (default: built by name from
+    ``models_dir``) and ``estimator`` (default: the VAE for ``dlmpc``) may be given, e.g.
+    a DL-MPC with other settings."""
+    scenario = preset_scenario(spec.scenario, spec.seed, spec.settings or None)
+    if controller is None:
+        controller = make_controller(spec.controller, models_dir,
+                                     AngleLimits(max_step=spec.max_step),
+                                     initial_k=float(scenario(1)))
+    if estimator is None and spec.controller == 'dlmpc':
+        estimator = load_estimator(models_dir)
+    return run_closed_loop(controller, scenario, spec.round_trips, spec.period,
+                           random_initial_angles(spec.seed), estimator=estimator,
+                           meta=spec.meta(), progress=progress,
+                           measurement_noise=spec.measurement_noise, noise_seed=spec.seed)
+
+
+def run_spec(spec: RunSpec, models_dir: Path, run_dir: Path, domain_id: int = 88,
+             progress: Callable[[int], None] | None = None) -> RunRecord:
+    """The run in its mode: in one process, or through the bringup (its files in
+    ``run_dir``, on ROS domain ``domain_id``)."""
+    if spec.mode == 'fast':
+        return run_fast(spec, models_dir, progress=progress)
+    from dlmpc_ros.evaluation.graph_run import run_graph
+    if spec.measurement_noise:
+        raise ValueError('measurement noise applies to fast runs only')
+    return run_graph(run_dir, spec.controller, spec.scenario, setting_strings(spec.run_settings),
+                     spec.round_trips, spec.period, random_initial_angles(spec.seed),
+                     domain_id, lockstep=spec.mode == 'graph-lockstep',
+                     models_dir=models_dir, meta=spec.meta())
+
+
+def setting_strings(settings: dict[str, object]) -> list[str]:
+    """``KEY=VALUE`` strings of scenario settings (lists as comma-separated floats)."""
+    out = []
+    for key, value in settings.items():
+        if isinstance(value, (list, tuple)):
+            value = ','.join(repr(float(v)) for v in value)
+        out.append(f'{key}={value}')
+    return out
