@@ -35,7 +35,7 @@ SCENARIOS = ('sinusoidal', 'chirp', 'random_walk', 'steps')
 
 def run_one(job: tuple[str, dict, str, int, int, str]) -> dict:
     """One closed-loop run: (variant, overrides, scenario, seed, round trips, models)."""
-    from dlmpc_ros.control.dlmpc import DLMPCConfig
+    from dlmpc_ros.control.dlmpc_config import DLMPCConfig
     from dlmpc_ros.control.factory import load_dlmpc
     from dlmpc_ros.control.limits import AngleLimits
     from dlmpc_ros.control.step import MODES

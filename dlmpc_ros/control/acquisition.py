@@ -19,6 +19,7 @@ from statistics import NormalDist
 
 import numpy as np
 
+from dlmpc_ros.core import checks
 from dlmpc_ros.core.angles import wrap_angles
 
 
@@ -31,8 +32,11 @@ class AcquisitionConfig:
     patience: int = 10
     """Unlocked periods before the scan starts (the loops may still be acquiring)."""
     dwell_periods: int = 5
+    """Periods the scan waits at each point once the servos are there."""
     scan_points: int = 9
+    """Surrogate values scanned (equal-probability quantiles of the VAE prior)."""
     arrive_tolerance: float = 1e-3
+    """Largest angle gap [rad] at which the servos count as arrived at a scan point."""
     travel_periods: int = 20
     """Periods after which a scan point counts as reached even if the servos are not
     there (a point outside the angle limits)."""
@@ -43,6 +47,7 @@ class AcquisitionConfig:
         if min(self.patience, self.dwell_periods, self.scan_points, self.travel_periods) < 1:
             raise ValueError('patience, dwell_periods, scan_points and travel_periods must '
                              'be >= 1')
+        checks.positive(self, 'arrive_tolerance')
 
 
 def scan_surrogates(points: int) -> np.ndarray:

@@ -15,13 +15,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from dlmpc_ros.control.baselines import FixedBestController, OracleController, PassiveController
+from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.esc import ESCController
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.step import Controller
 from dlmpc_ros.learning.tables import load_baselines
 
-if TYPE_CHECKING:
-    from dlmpc_ros.control.dlmpc import DLMPCConfig, DLMPCController
+if TYPE_CHECKING:  # torch-based: imported where they are built
+    from dlmpc_ros.control.dlmpc import DLMPCController
     from dlmpc_ros.control.estimator import SurrogateEstimator
 
 CONTROLLERS = ('dlmpc', 'esc', 'passive', 'fixed_best', 'oracle')
@@ -39,7 +40,7 @@ def load_estimator(models_dir: Path) -> SurrogateEstimator:
 def load_dlmpc(models_dir: Path, config: DLMPCConfig | None = None) -> DLMPCController:
     """The DL-MPC controller from ``models_dir/{kmap,mprnn}.pt`` and, unless tracking is
     off, ``models_dir/track_curve.npz`` (no file holds the true K of a run)."""
-    from dlmpc_ros.control.dlmpc import DLMPCConfig, DLMPCController
+    from dlmpc_ros.control.dlmpc import DLMPCController
     from dlmpc_ros.learning.checkpoint import ModelFileError
     from dlmpc_ros.learning.curve import FILE_NAME, load_curve
     from dlmpc_ros.learning.kmap import load_kmap
@@ -96,6 +97,5 @@ def make_controller(name: str, models_dir: Path, limits: AngleLimits | None = No
     """Any controller of :data:`CONTROLLERS`: the DL-MPC with ``dlmpc_config`` (default
     settings within ``limits``) or a baseline (:func:`make_baseline`)."""
     if name == 'dlmpc':
-        from dlmpc_ros.control.dlmpc import DLMPCConfig
         return load_dlmpc(models_dir, dlmpc_config or DLMPCConfig(limits=limits or AngleLimits()))
     return make_baseline(name, models_dir, limits, initial_k=initial_k)

@@ -19,8 +19,11 @@ class AngleLimits:
     """
 
     low: float = -math.pi
+    """Lowest angle a servo may be sent to [rad]."""
     high: float = math.pi
+    """Highest angle a servo may be sent to [rad]."""
     max_step: float = 0.25
+    """Largest change of any angle per control period [rad] (servo speed)."""
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.low) and math.isfinite(self.high) and self.low < self.high):

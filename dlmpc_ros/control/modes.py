@@ -24,18 +24,16 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol
+from typing import Protocol
 
 import numpy as np
 import torch
 
 from dlmpc_ros.control.acquisition import LockSupervisor
+from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.planner import PlanProblem, solve_plan
 from dlmpc_ros.control.tracking import CurveTracker
 from dlmpc_ros.learning.mprnn import MPRNN
-
-if TYPE_CHECKING:  # for annotations only: dlmpc builds the modes
-    from dlmpc_ros.control.dlmpc import DLMPCConfig
 
 
 @dataclass(frozen=True)

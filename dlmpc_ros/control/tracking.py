@@ -44,9 +44,13 @@ class TrackingConfig:
     comparisons agree in sign and shrinks by ``shrink`` when they flip (Rprop), within
     [``min_step``, ``max_step``]."""
     min_step: float = 0.005
+    """Smallest change of the estimate per compared block."""
     max_step: float = 0.03
+    """Largest change of the estimate per compared block."""
     grow: float = 1.5
+    """Factor on the step while the comparisons agree in sign (>= 1)."""
     shrink: float = 0.5
+    """Factor on the step when they flip (in (0, 1])."""
     deadband: float = 5e-5
     """Relative O difference below which the estimate does not move."""
     entry_patience: int = 3
@@ -54,16 +58,23 @@ class TrackingConfig:
     settle: int = 20
     """Periods after entry before the guard judges the objective."""
     guard: float = 0.85
+    """Fraction of the O measured before entry under which tracking is failing."""
     guard_periods: int = 3
     """Consecutive periods below ``guard`` x the entry O that hand back to the inner loop."""
     cooldown: int = 50
+    """Periods to wait after handing back before trying again (doubled, up to 64 x,
+    after each failed entry)."""
     survey_ratio: float = 0.93
     """O below this fraction of the curve's own steady O at the estimate, for
     ``survey_patience`` periods, means the estimate sits on a plateau away from K: survey."""
     survey_patience: int = 20
+    """Periods under the survey level before the survey starts."""
     survey_spacing: float = 0.05
+    """Distance between the curve points the survey visits (K units)."""
     survey_dwell: int = 3
+    """Periods the survey waits at each point (twice that at the first)."""
     survey_cooldown: int = 300
+    """Periods after a survey before the next may start."""
 
     def __post_init__(self) -> None:
         if not (self.dither > 0 and 0 < self.min_step <= self.step <= self.max_step

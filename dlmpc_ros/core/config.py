@@ -17,50 +17,34 @@ BIREFRINGENCE_RANGE = (-0.3, 0.3)
 
 @dataclass(frozen=True)
 class CavityConfig:
-    """Every parameter of the cavity model and its solver, with the spec's defaults.
-
-    Attributes
-    ----------
-    dispersion
-        D, averaged group-velocity dispersion (normal dispersion < 0).
-    cross_phase
-        A, cross-phase modulation coefficient; ``cross_phase + four_wave == 1``.
-    four_wave
-        B, four-wave-mixing coefficient.
-    pump
-        g0, pump strength of the saturable gain ``g = 2 g0 / (1 + energy / E0)``.
-    saturation_energy
-        E0, gain saturation energy (> 0).
-    gain_bandwidth
-        tau, parabolic gain bandwidth: gain ``g (1 - tau k^2)``.
-    loss
-        Gamma, distributed fiber loss.
-    fiber_length
-        Z, fiber length of one round trip.
-    window
-        T, width of the periodic time window.
-    points
-        n, number of time (and wavenumber) grid points; at least 16.
-    steps_per_round_trip
-        Symmetric split steps of the fiber pass. The scheme is second order; 32 keeps
-        E and M within 3e-4 of a DOP853 solution at the defaults.
-    steady_tolerance
-        A laser is at steady state when the relative L2 change of its amplitude
-        ``phi`` between consecutive round trips is below this value.
-    """
+    """Every parameter of the cavity model and its solver, with the spec's defaults."""
 
     dispersion: float = -0.4
+    """D, averaged group-velocity dispersion (normal dispersion < 0)."""
     cross_phase: float = 2.0 / 3.0
+    """A, cross-phase modulation coefficient; ``cross_phase + four_wave == 1``."""
     four_wave: float = 1.0 / 3.0
+    """B, four-wave-mixing coefficient."""
     pump: float = 1.73
+    """g0, pump strength of the saturable gain ``g = 2 g0 / (1 + energy / E0)``."""
     saturation_energy: float = 4.23
+    """E0, gain saturation energy (> 0)."""
     gain_bandwidth: float = 0.1
+    """tau, parabolic gain bandwidth: gain ``g (1 - tau k^2)``."""
     loss: float = 0.1
+    """Gamma, distributed fiber loss."""
     fiber_length: float = 1.5
+    """Z, fiber length of one round trip."""
     window: float = 60.0
+    """T, width of the periodic time window."""
     points: int = 256
+    """n, number of time (and wavenumber) grid points; at least 16."""
     steps_per_round_trip: int = 32
+    """Symmetric split steps of the fiber pass. The scheme is second order; 32 keeps E and
+    M within 3e-4 of a DOP853 solution at the defaults."""
     steady_tolerance: float = 1e-6
+    """A laser is at steady state when the relative L2 change of its amplitude ``phi``
+    between consecutive round trips is below this value."""
 
     def __post_init__(self) -> None:
         problems = config_problems(asdict(self))

@@ -24,15 +24,26 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 from dlmpc_ros.control.step import MODES
+from dlmpc_ros.core import checks
 from dlmpc_ros.evaluation.record import RunRecord
 from dlmpc_ros.learning.tables import envelope_objective
 
 
 @dataclass(frozen=True)
 class MetricSettings:
+    """What counts as locked, acquired and recovered (see the module docstring)."""
+
     lock_fraction: float = 0.5
+    """A round trip is locked when O >= this x O*(K(t))."""
     hold: int = 200
+    """Consecutive locked round trips that make an acquisition or a recovery."""
     step_threshold: float = 0.02
+    """A change of K between two round trips above this is a step."""
+
+    def __post_init__(self) -> None:
+        checks.fraction(self, 'lock_fraction')
+        checks.counts(self, 'hold')
+        checks.positive(self, 'step_threshold')
 
 
 def _first_hold(locked: np.ndarray, start: int, hold: int) -> int | None:

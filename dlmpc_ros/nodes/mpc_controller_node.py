@@ -14,7 +14,8 @@ import sys
 from rclpy.experimental import EventsExecutor
 
 from dlmpc_ros.control.acquisition import AcquisitionConfig
-from dlmpc_ros.control.dlmpc import DLMPCConfig, DLMPCController
+from dlmpc_ros.control.dlmpc import DLMPCController
+from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.factory import load_dlmpc
 from dlmpc_ros.control.tracking import TrackingConfig
 from dlmpc_ros.learning.checkpoint import ModelFileError

@@ -73,7 +73,7 @@ class SweepGrid:
 
 
 def sweep_grid(sweep: dict[str, np.ndarray]) -> SweepGrid:
-    """Arrange the sweep's points (arrays of :data:`dlmpc_ros.learning.sweep.FIELDS`) by
+    """Arrange the sweep's points (arrays of :data:`dlmpc_ros.training.sweep.FIELDS`) by
     chain and K."""
     chains = np.unique(sweep['chain'])
     k_grid = np.unique(sweep['K'])

@@ -5,7 +5,8 @@ import pytest
 import torch
 
 from dlmpc_ros.control.acquisition import AcquisitionConfig, LockSupervisor, scan_surrogates
-from dlmpc_ros.control.dlmpc import DLMPCConfig, DLMPCController
+from dlmpc_ros.control.dlmpc import DLMPCController
+from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.learning.kmap import KMap, KMapConfig
 from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
 
