@@ -55,8 +55,7 @@ def test_bad_acquisition_settings_are_rejected(bad):
 
 
 def test_dlmpc_scans_within_the_servo_limits_while_unlocked():
-    torch.manual_seed(0)
-    kmap = KMap(KMapConfig(hidden=16))
+    kmap = KMap(KMapConfig(hidden=16), generator=torch.Generator().manual_seed(0))
     mprnn = MPRNN(MPRNNConfig(window=2, horizon=4, n_hidden=16, n_latent=8))
     config = DLMPCConfig(acquisition=AcquisitionConfig(patience=3), error_threshold=1e6)
     ctrl = DLMPCController(kmap, mprnn, config, target_objective=0.2)

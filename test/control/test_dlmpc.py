@@ -14,8 +14,7 @@ from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
 
 
 def _controller(**config) -> DLMPCController:
-    torch.manual_seed(0)
-    kmap = KMap(KMapConfig(hidden=16))
+    kmap = KMap(KMapConfig(hidden=16), generator=torch.Generator().manual_seed(0))
     mprnn = MPRNN(MPRNNConfig(window=2, horizon=4, n_hidden=16, n_latent=8))
     return DLMPCController(kmap, mprnn, DLMPCConfig(**config))
 

@@ -142,8 +142,7 @@ def test_bad_curves_are_rejected():
 
 
 def test_dlmpc_tracks_once_locked_and_reports_its_estimate():
-    torch.manual_seed(0)
-    kmap = KMap(KMapConfig(hidden=16))
+    kmap = KMap(KMapConfig(hidden=16), generator=torch.Generator().manual_seed(0))
     mprnn = MPRNN(MPRNNConfig(window=2, horizon=4, n_hidden=16, n_latent=8))
     cfg = DLMPCConfig(tracking=TrackingConfig(entry_patience=3, settle=0))
     ctrl = DLMPCController(kmap, mprnn, cfg, target_objective=0.2,
