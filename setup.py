@@ -26,6 +26,8 @@ setup(
         'matplotlib>=3.7',
         'pyyaml',
         'rosbags>=0.11,<0.12',
+        'dask>=2024.1',
+        'distributed>=2024.1',
     ],
     extras_require={'ml': ['torch>=2.2,<3', 'tqdm>=4.60']},
     zip_safe=True,

@@ -25,8 +25,10 @@ from pathlib import Path
 import numpy as np
 
 from dlmpc_ros import interfaces as itf
+from dlmpc_ros.control.factory import CONTROLLERS
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.drift import SCENARIOS, make_scenario, parse_settings
+from dlmpc_ros.core.plants import NOMINAL, PHYSICS_FIELDS, parse_plant, plant_parameters
 from dlmpc_ros.graph import NodeGraph, NodeProcess
 from dlmpc_ros.paths import config_file
 
@@ -40,7 +42,7 @@ NODES = {
                             'baseline_controller.yaml'),
     'recorder': ('dlmpc_ros.nodes.recorder_node', 'recorder.yaml'),
 }
-CONTROLLER_CHOICES = ('dlmpc', 'esc', 'passive', 'fixed_best', 'oracle', 'none')
+CONTROLLER_CHOICES = (*CONTROLLERS, 'none')
 #: Nodes that subscribe /laser/state (the simulator holds round trip 1 until they do).
 #: Topics each node publishes that the recorder waits for before the run starts.
 PUBLISHES = {
@@ -88,6 +90,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help='drift scenario setting, repeatable (e.g. period=2000)')
     p.add_argument('--laser-param', action='append', default=[], metavar='KEY=VALUE',
                    help='laser_sim parameter override, repeatable (e.g. pump=1.8)')
+    p.add_argument('--plant', action='append', default=[], metavar='KEY=VALUE',
+                   help='a physical parameter of the simulated cavity, repeatable (one of '
+                        f'{", ".join(PHYSICS_FIELDS)}); only laser_sim gets it')
+    p.add_argument('--plant-family', type=int, metavar='SEED',
+                   help='simulate plant SEED of the family of core/plants.py (drawn and '
+                        'checked to mode-lock at every K once, then cached)')
     p.add_argument('--round-trips', type=int, default=0,
                    help='stop after this many laser round trips (0: run until Ctrl-C)')
     p.add_argument('--rate', type=float, default=0.0,
@@ -141,7 +149,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         if 'path' in args.scenario_settings:  # nodes may run elsewhere than here
             args.scenario_settings['path'] = str(Path(args.scenario_settings['path']).resolve())
         make_scenario(args.scenario, **args.scenario_settings)  # fail here, not in a node
-        args.laser_overrides = dict(_laser_override(item) for item in args.laser_param)
+        args.laser_overrides = {**plant_overrides(args),
+                                **dict(_laser_override(item) for item in args.laser_param)}
         args.controller_overrides = dict(_laser_override(item)
                                          for item in args.controller_param)
         if args.initial_angles is not None:
@@ -149,11 +158,30 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             if len(angles) != 4 or not np.isfinite(angles).all():
                 raise ValueError('--initial-angles needs 4 finite numbers')
             args.laser_overrides['initial_angles'] = angles
-    except ValueError as err:
+    except (ValueError, FileNotFoundError) as err:
         p.error(str(err))
     if args.rate < 0 or args.round_trips < 0 or args.period < 1:
         p.error('--rate and --round-trips must be >= 0, --period >= 1')
     return args
+
+
+def plant_overrides(args: argparse.Namespace) -> dict[str, float]:
+    """laser_sim's physical parameters for ``--plant`` and ``--plant-family`` (empty: the
+    nominal cavity)."""
+    if args.plant and args.plant_family is not None:
+        raise ValueError('give --plant or --plant-family, not both')
+    if args.plant_family is not None:
+        from dlmpc_ros.core.plants import PlantFamily
+        from dlmpc_ros.learning.tables import load_baselines
+        from dlmpc_ros.paths import models_dir
+        from dlmpc_ros.training.envelope import draw_plant
+        tables = load_baselines(models_dir(args.models_dir or '') / 'oracle.npz')
+        plant, _ = draw_plant(PlantFamily(), args.plant_family, tables)
+        return plant_parameters(plant)
+    if args.plant:
+        return {k: v for k, v in plant_parameters(parse_plant(args.plant)).items()
+                if v != plant_parameters(NOMINAL)[k]}
+    return {}
 
 
 def _laser_override(item: str) -> tuple[str, object]:
@@ -220,10 +248,12 @@ def main(argv: list[str] | None = None) -> int:
     log_dir = args.log_dir or Path.home() / '.ros' / 'log' / 'dlmpc_ros' / time.strftime(
         '%Y%m%d-%H%M%S')
     graph = build_graph(args, dict(os.environ), log_dir)
+    plant = {k: v for k, v in args.laser_overrides.items() if k in PHYSICS_FIELDS}
     print(f'bringup: domain {args.domain_id}, discovery {args.discovery}, controller '
           f'{args.controller}{" (lockstep)" if args.lockstep else ""}, nodes '
           f'{", ".join(args.nodes)}, logs in {log_dir}'
-          f'{", respawn " + ",".join(args.respawn) if args.respawn else ""}', flush=True)
+          f'{", respawn " + ",".join(args.respawn) if args.respawn else ""}'
+          f'{", plant " + str(plant) if plant else ""}', flush=True)
     from dlmpc_ros.ros.monitor import run_monitor  # rclpy only from here on
     graph.start()
     try:

@@ -1,11 +1,23 @@
-"""dlmpc-evaluate: closed-loop runs of controllers on drift scenarios, with metrics,
-a markdown table and figures.
+"""dlmpc-evaluate: closed-loop runs of controllers on drift scenarios and plants, with
+metrics, markdown tables and figures; and the auto-mode-locking benchmark.
 
 Example: ``dlmpc-evaluate --scenario sinusoidal --controller dlmpc --controller fixed_best
 --seed 1 --round-trips 20000 --fast --out out/eval`` runs the cross product of scenarios,
-controllers and seeds, in one process (``--fast``) or through the real node graph in
-lockstep (default), and writes ``OUT/metrics.json``, ``OUT/table.md``, ``OUT/figures/``
-and one folder per run (``record.npz``, ``metrics.json``).
+controllers and seeds, in one process per run (``--fast``, on Dask workers:
+``--workers N``, ``--scheduler ADDRESS``) or through the real node graph in lockstep
+(default, one run at a time), and writes ``OUT/metrics.json``, ``OUT/table.md``,
+``OUT/figures/`` and one folder per run (``record.npz``, ``metrics.json``).
+
+Plants (:mod:`dlmpc_ros.core.plants`): ``--plant KEY=VALUE`` (repeatable) sets the
+simulated cavity's physical parameters, ``--plant-family SEED`` (repeatable) draws
+plants of the documented family; each plant's envelope O*(K) divides its runs
+(computed once and cached, minutes each). With several plants the runs go to
+``OUT/<plant>/``. No plant parameter reaches a controller.
+
+``--benchmark lock --starts N`` scores auto-mode-locking instead: N cold starts from
+random angles and a noise field, K drawn per start, ``--budget`` round trips each
+(:mod:`dlmpc_ros.evaluation.lock_benchmark`); writes ``OUT/lock.json`` and
+``OUT/lock.png``.
 
 ``dlmpc-evaluate --bag DIR [--bag DIR ...] --out OUT`` does the same for runs recorded
 with ``bringup --record`` (or the recorder node): the same metrics, table and figures as
@@ -17,23 +29,30 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import json
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from dlmpc_ros.control.factory import CONTROLLERS
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.core.drift import DEFAULTS, parse_settings
 from dlmpc_ros.evaluation.figures import plot_surrogate, plot_tracking
 from dlmpc_ros.evaluation.presets import SCENARIOS, preset_settings
-from dlmpc_ros.evaluation.report import measure, summary_line, write_summary
-from dlmpc_ros.evaluation.runs import RunSpec, run_spec
+from dlmpc_ros.core.plants import PHYSICS_FIELDS, parse_plant, plant_parameters
+from dlmpc_ros.evaluation.lock_benchmark import (DRIFTS, LockSpec, LockTask, lock_metrics,
+                                                 plot_lock_times, run_starts)
+from dlmpc_ros.evaluation.report import (lock_table, measure, summary_line, write_plant_table,
+                                         write_summary)
+from dlmpc_ros.evaluation.runs import RunSpec, RunTask, run_spec, run_task
 from dlmpc_ros.learning.checkpoint import ModelFileError
 from dlmpc_ros.learning.tables import load_baselines
 from dlmpc_ros.paths import models_dir as default_models_dir
+from dlmpc_ros.scaleout import TaskFailure, default_workers, run_tasks
+from dlmpc_ros.training.envelope import PlantTask, draw_task, envelope_task
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -62,17 +81,49 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument('--domain-id', type=int, default=88, help='ROS domain of graph runs')
     p.add_argument('--bag', action='append', type=Path, metavar='DIR',
                    help='evaluate a recorded rosbag2 bag instead of running, repeatable')
+    p.add_argument('--plant', action='append', default=[], metavar='KEY=VALUE',
+                   help=f'a physical parameter of the simulated cavity, repeatable (one of '
+                        f'{", ".join(PHYSICS_FIELDS)}); the simulator and the evaluation '
+                        'see it, no controller does')
+    p.add_argument('--plant-family', action='append', type=int, default=[], metavar='SEED',
+                   help='a plant drawn from the family of core/plants.py, repeatable')
+    p.add_argument('--nominal', action='store_true',
+                   help='also run the nominal cavity (the default without plant options)')
+    p.add_argument('--benchmark', choices=('drift', 'lock'), default='drift',
+                   help='drift: the scenarios (default); lock: the auto-mode-locking '
+                        'benchmark of cold starts')
+    p.add_argument('--starts', type=int, default=100, help='lock: cold starts per plant')
+    p.add_argument('--budget', type=int, default=1000, help='lock: round trips per start')
+    p.add_argument('--lock-drift', choices=DRIFTS, default='held',
+                   help='lock: K held at its draw, or drifting slowly around it')
+    p.add_argument('--workers', type=int, default=default_workers(),
+                   help='fast runs, plant draws and envelopes on this many local Dask '
+                        'workers (1: in this process; default: the cores, %(default)s)')
+    p.add_argument('--scheduler', metavar='ADDRESS',
+                   help='run the tasks on the Dask cluster at ADDRESS instead')
+    p.add_argument('--cache', type=Path,
+                   help='cache of plant envelopes and draws (default: ~/.cache/dlmpc_ros)')
     p.add_argument('--out', type=Path, required=True, help='output directory')
     args = p.parse_args(argv)
     args.models_dir = args.models_dir or default_models_dir()
+    if args.workers < 1 or args.starts < 1 or args.budget < 1:
+        p.error('--workers, --starts and --budget must be >= 1')
+    try:
+        args.custom_plant = (plant_parameters(parse_plant(args.plant)) if args.plant
+                             else None)
+    except ValueError as err:
+        p.error(str(err))
     if args.measurement_noise and not args.fast:
         p.error('--measurement-noise applies to --fast runs (a graph run measures the '
                 'laser node as it is)')
     if not 0 <= args.measurement_noise < 1:
         p.error('--measurement-noise must be in [0, 1)')
-    if args.bag and (args.scenario or args.controller or args.seed or args.fast):
+    if args.bag and (args.scenario or args.controller or args.seed or args.fast
+                     or args.plant or args.plant_family):
         p.error('--bag evaluates recorded runs; it takes no --scenario, --controller, '
-                '--seed or --fast')
+                '--seed, --fast or plant')
+    if args.benchmark == 'lock' and (args.scenario or args.seed):
+        p.error('--benchmark lock draws its own starts; it takes no --scenario or --seed')
     if args.bag:
         return args
     args.scenario = args.scenario or ['sinusoidal']
@@ -92,13 +143,57 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
-def run_specs(args: argparse.Namespace) -> list[RunSpec]:
-    """The runs the arguments ask for: scenarios x seeds x controllers."""
+def run_specs(args: argparse.Namespace, plant: dict | None = None) -> list[RunSpec]:
+    """The runs the arguments ask for on one plant: scenarios x seeds x controllers."""
     mode = 'fast' if args.fast else ('graph-free-run' if args.free_run else 'graph-lockstep')
     return [RunSpec(scenario, seed, controller, args.settings[scenario], args.round_trips,
-                    args.period, args.max_step, args.measurement_noise, mode)
+                    args.period, args.max_step, args.measurement_noise, mode, dict(plant or {}))
             for scenario, seed, controller in itertools.product(args.scenario, args.seed,
                                                                 args.controller)]
+
+
+@dataclass
+class Plant:
+    """A plant of the run: its label, physical parameters and envelope."""
+
+    label: str
+    parameters: dict
+    envelope: dict | None = None
+
+
+def resolve_plants(args: argparse.Namespace, tables: dict, tables_path: Path) -> list[Plant]:
+    """The plants the arguments ask for, with their envelopes (drawn and computed as
+    tasks, cached): the nominal plant's is the baseline tables' mirrored envelope."""
+    cache = None if args.cache is None else str(args.cache)
+    plants = []
+    if args.nominal or not (args.plant or args.plant_family):
+        plants.append(Plant('nominal', {}, tables))
+    if args.custom_plant is not None:
+        from dlmpc_ros.core.plants import plant_fingerprint
+        cavity = parse_plant(args.plant)
+        plants.append(Plant(f'plant-{plant_fingerprint(cavity)}', args.custom_plant))
+    if args.plant_family:
+        tasks = [PlantTask(str(tables_path), cache, seed=seed) for seed in args.plant_family]
+        draws = _checked(run_tasks(draw_task, tasks, args.workers, args.scheduler,
+                                   desc='plant draws'))
+        plants += [Plant(f'family-{seed}', draw['plant'])
+                   for seed, draw in zip(args.plant_family, draws)]
+    todo = [p for p in plants if p.envelope is None]
+    if todo:
+        tasks = [PlantTask(str(tables_path), cache, plant=p.parameters) for p in todo]
+        envelopes = _checked(run_tasks(envelope_task, tasks, args.workers, args.scheduler,
+                                       desc='plant envelopes'))
+        for plant, envelope in zip(todo, envelopes):
+            plant.envelope = envelope
+    return plants
+
+
+def _checked(results: list) -> list:
+    """The results, or RuntimeError naming the failed tasks."""
+    failed = [r for r in results if isinstance(r, TaskFailure)]
+    if failed:
+        raise RuntimeError('; '.join(str(f) for f in failed))
+    return results
 
 
 def evaluate_bags(args: argparse.Namespace, envelope: dict) -> int:
@@ -135,50 +230,140 @@ def evaluate_bags(args: argparse.Namespace, envelope: dict) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    tables_path = args.models_dir / 'oracle.npz'
     try:
-        envelope = load_baselines(args.models_dir / 'oracle.npz')
-    except (ModelFileError, FileNotFoundError) as err:
+        tables = load_baselines(tables_path)
+    except (ModelFileError, FileNotFoundError, ValueError) as err:
         print(f'dlmpc-evaluate: {err}', file=sys.stderr)
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
     if args.bag:
-        code = evaluate_bags(args, envelope)
+        code = evaluate_bags(args, tables)
         if code == 0:
             print(f'dlmpc-evaluate: wrote {args.out}/metrics.json, table.md and figures/')
         return code
-    runs, records = [], {}
-    specs = run_specs(args)
-    for i, spec in enumerate(specs, 1):
-        run_dir = args.out / f'{spec.scenario}-s{spec.seed}-{spec.controller}'
-        started = time.monotonic()
-        try:
-            with tqdm(total=spec.round_trips, unit='RT', desc=f'{spec.scenario}/'
-                      f'{spec.controller}', leave=False, mininterval=1.0,
-                      disable=not args.fast) as bar:
-                record = run_spec(spec, args.models_dir, run_dir, args.domain_id,
-                                  progress=lambda done: bar.update(done - bar.n))
-        except (ModelFileError, FileNotFoundError, RuntimeError, ValueError) as err:
-            print(f'dlmpc-evaluate: {spec.scenario}/{spec.controller} failed: {err}',
-                  file=sys.stderr)
-            return 1
-        wall = time.monotonic() - started
-        metrics = measure(record, envelope, run_dir, wall_seconds=round(wall, 2))
-        runs.append({'scenario': spec.scenario, 'seed': spec.seed,
-                     'controller': spec.controller, 'metrics': metrics, 'meta': record.meta})
-        records[(spec.scenario, spec.seed, spec.controller)] = record
-        print(f'[{i}/{len(specs)}] {spec.scenario} seed {spec.seed} {spec.controller}: '
-              f'{summary_line(metrics)} ({wall:.0f} s)', flush=True)
-    write_summary(args.out, runs)
-    for scenario_name, seed in itertools.product(args.scenario, args.seed):
-        group = {c: records[(scenario_name, seed, c)] for c in args.controller}
-        shown = 'dlmpc' if 'dlmpc' in group else args.controller[0]
-        plot_tracking(group, envelope, shown, f'{scenario_name}, seed {seed}',
-                      args.out / 'figures' / f'{scenario_name}-s{seed}-tracking.png')
-        if 'dlmpc' in group:
-            plot_surrogate(group['dlmpc'], f'{scenario_name}, seed {seed}',
-                           args.out / 'figures' / f'{scenario_name}-s{seed}-surrogate.png')
-    print(f'dlmpc-evaluate: wrote {args.out}/metrics.json, table.md and figures/')
-    return 0
+    try:
+        plants = resolve_plants(args, tables, tables_path)
+        if args.benchmark == 'lock':
+            return lock_benchmark(args, plants)
+        return drift_benchmark(args, plants)
+    except (ModelFileError, FileNotFoundError, RuntimeError, ValueError) as err:
+        print(f'dlmpc-evaluate: {err}', file=sys.stderr)
+        return 1
+
+
+def drift_benchmark(args: argparse.Namespace, plants: list[Plant]) -> int:
+    """Every plant x scenario x seed x controller run, their metrics, tables, figures."""
+    started = time.monotonic()
+    nested = len(plants) > 1 or plants[0].label != 'nominal'
+    jobs = [(plant, spec) for plant in plants for spec in run_specs(args, plant.parameters)]
+    if args.fast:
+        tasks = [RunTask(spec, str(args.models_dir)) for _, spec in jobs]
+        records = run_tasks(run_task, tasks, args.workers, args.scheduler, desc='runs',
+                            torch='dlmpc' in args.controller)
+    else:  # graph runs: one bringup at a time, each on the run's own domain
+        records = []
+        for i, (plant, spec) in enumerate(jobs):
+            run_dir = _run_dir(args.out, plant, spec, nested)
+            records.append(run_spec(spec, args.models_dir, run_dir, args.domain_id))
+            print(f'[{i + 1}/{len(jobs)}] graph run {run_dir.name} done', flush=True)
+    runs, failed = [], 0
+    for (plant, spec), record in zip(jobs, records):
+        if isinstance(record, TaskFailure):
+            failed += 1
+            print(f'dlmpc-evaluate: {plant.label} {spec.scenario} seed {spec.seed} '
+                  f'{spec.controller} failed: {record.error}', file=sys.stderr)
+            continue
+        run_dir = _run_dir(args.out, plant, spec, nested)
+        metrics = measure(record, plant.envelope, run_dir)
+        runs.append({'plant': plant.label, 'scenario': spec.scenario, 'seed': spec.seed,
+                     'controller': spec.controller, 'metrics': metrics, 'meta': record.meta,
+                     'record': record})
+        print(f'{plant.label} {spec.scenario} seed {spec.seed} {spec.controller}: '
+              f'{summary_line(metrics)}', flush=True)
+    for plant in plants:
+        mine = [r for r in runs if r['plant'] == plant.label]
+        if not mine:
+            continue
+        out = args.out / plant.label if nested else args.out
+        out.mkdir(parents=True, exist_ok=True)
+        write_summary(out, [{k: v for k, v in r.items() if k != 'record'} for r in mine],
+                      plant=plant.parameters)
+        for scenario_name, seed in itertools.product(args.scenario, args.seed):
+            group = {r['controller']: r['record'] for r in mine
+                     if r['scenario'] == scenario_name and r['seed'] == seed}
+            if not group:
+                continue
+            shown = 'dlmpc' if 'dlmpc' in group else next(iter(group))
+            title = f'{plant.label}: {scenario_name}, seed {seed}'
+            plot_tracking(group, plant.envelope, shown, title,
+                          out / 'figures' / f'{scenario_name}-s{seed}-tracking.png')
+            if 'dlmpc' in group:
+                plot_surrogate(group['dlmpc'], f'{scenario_name}, seed {seed}',
+                               out / 'figures' / f'{scenario_name}-s{seed}-surrogate.png')
+    if nested:
+        write_plant_table(args.out, [{k: v for k, v in r.items() if k != 'record'}
+                                     for r in runs], {p.label: p.parameters for p in plants},
+                          round(time.monotonic() - started, 1), args.workers)
+    print(f'dlmpc-evaluate: wrote {args.out}/metrics.json, table.md and figures/ '
+          f'({len(runs)} runs, {failed} failed, {time.monotonic() - started:.0f} s)')
+    return 1 if failed else 0
+
+
+def _run_dir(out: Path, plant: Plant, spec: RunSpec, nested: bool) -> Path:
+    name = f'{spec.scenario}-s{spec.seed}-{spec.controller}'
+    return (out / plant.label / name) if nested else out / name
+
+
+def lock_benchmark(args: argparse.Namespace, plants: list[Plant]) -> int:
+    """The auto-mode-locking benchmark of every controller on every plant."""
+    started = time.monotonic()
+    per_task = 10
+    jobs, tasks = [], []
+    for plant in plants:
+        for controller in args.controller:
+            spec = LockSpec(controller, args.starts, args.budget, period=args.period,
+                            max_step=args.max_step, drift=args.lock_drift,
+                            plant=dict(plant.parameters))
+            for first in range(0, args.starts, per_task):
+                jobs.append((plant.label, controller, spec))
+                tasks.append(LockTask(spec, tuple(range(first, min(first + per_task,
+                                                                   args.starts))),
+                                      str(args.models_dir), plant.envelope['K'],
+                                      plant.envelope['O_star']))
+    results = run_tasks(run_starts, tasks, args.workers, args.scheduler, desc='lock starts',
+                        torch='dlmpc' in args.controller)
+    failed = [r for r in results if isinstance(r, TaskFailure)]
+    for failure in failed:
+        print(f'dlmpc-evaluate: {failure}', file=sys.stderr)
+    summary: dict = {'settings': {'starts': args.starts, 'budget': args.budget,
+                                  'drift': args.lock_drift, 'hold_periods': 20,
+                                  'lock_fraction': 0.5, 'period': args.period},
+                     'plants': {}}
+    for plant in plants:
+        entry = {'plant': plant.parameters, 'controllers': {}}
+        for controller in args.controller:
+            starts = [s for (label, name, _), r in zip(jobs, results)
+                      if label == plant.label and name == controller
+                      and not isinstance(r, TaskFailure) for s in r]
+            spec = next(spec for label, name, spec in jobs
+                        if label == plant.label and name == controller)
+            entry['controllers'][controller] = lock_metrics(starts, spec)
+            m = entry['controllers'][controller]
+            print(f'{plant.label} {controller}: locked {m["locked"]}/{m["starts"]}, median '
+                  f'{m["median_round_trips"]} round trips, p90 {m["p90_round_trips"]}',
+                  flush=True)
+        summary['plants'][plant.label] = entry
+        plot_lock_times(entry['controllers'], args.budget, f'{plant.label}: {args.starts} cold '
+                        f'starts', args.out / f'lock-{plant.label}.png' if len(plants) > 1
+                        else args.out / 'lock.png')
+    if len(plants) == 1:  # the one plant's figures at the top level
+        summary.update(summary['plants'][plants[0].label]['controllers'])
+    summary['wall_seconds'] = round(time.monotonic() - started, 1)
+    (args.out / 'lock.json').write_text(json.dumps(summary, indent=1))
+    (args.out / 'lock.md').write_text(lock_table(summary))
+    print(f'dlmpc-evaluate: wrote {args.out}/lock.json, lock.md and the figures')
+    return 1 if failed else 0
 
 
 if __name__ == '__main__':

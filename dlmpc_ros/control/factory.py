@@ -17,6 +17,7 @@ import numpy as np
 from dlmpc_ros.control.baselines import FixedBestController, OracleController, PassiveController
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.esc import ESCController
+from dlmpc_ros.control.ga import GAController
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.step import Controller
 from dlmpc_ros.learning.tables import load_baselines
@@ -25,7 +26,7 @@ if TYPE_CHECKING:  # torch-based: imported where they are built
     from dlmpc_ros.control.dlmpc import DLMPCController
     from dlmpc_ros.control.estimator import SurrogateEstimator
 
-CONTROLLERS = ('dlmpc', 'esc', 'passive', 'fixed_best', 'oracle')
+CONTROLLERS = ('dlmpc', 'esc', 'ga', 'passive', 'fixed_best', 'oracle')
 BASELINES_FILE = 'oracle.npz'
 
 
@@ -72,12 +73,14 @@ def passive_angles(baselines: dict[str, np.ndarray], initial_k: float) -> np.nda
 
 def make_baseline(name: str, models_dir: Path, limits: AngleLimits | None = None,
                   angles: np.ndarray | None = None, initial_k: float | None = None) -> Controller:
-    """A baseline controller: ``esc``, ``passive`` (``angles``, or the best for
+    """A baseline controller: ``esc``, ``ga``, ``passive`` (``angles``, or the best for
     ``initial_k``), ``fixed_best`` or ``oracle``."""
     limits = limits or AngleLimits()
     if name == 'esc':
         return ESCController(limits=limits)
-    if name not in CONTROLLERS[2:]:
+    if name == 'ga':
+        return GAController(limits=limits)
+    if name not in CONTROLLERS[3:]:
         raise ValueError(f'unknown baseline {name!r}; choose one of {CONTROLLERS[1:]}')
     baselines = load_baselines(Path(models_dir) / BASELINES_FILE)
     if name == 'passive':

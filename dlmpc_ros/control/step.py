@@ -8,9 +8,9 @@ from typing import Protocol
 import numpy as np
 
 #: Modes a controller reports: the DL-MPC loops, holding (no usable input), baselines,
-#: the DL-MPC's lock acquisition scan, and its curve tracking.
+#: the DL-MPC's lock acquisition scan, its curve tracking, and the genetic algorithm.
 MODES = ('inner', 'outer', 'hold', 'passive', 'fixed_best', 'esc', 'oracle', 'acquire',
-         'track')
+         'track', 'ga')
 
 
 @dataclass(frozen=True)

@@ -158,9 +158,9 @@ def _observe(p, m, phi_prev, dt, out) -> None:
         m4 += d2 * d2
     m2 /= n
     m4 /= n
-    if m2 > 0.0:
+    if m2 * m2 > 0.0:
         kurtosis = m4 / (m2 * m2)
-    else:  # zero field: the flat-spectrum limit, the largest value M can take
+    else:  # a zero (or decayed, underflowing) field: the flat-spectrum limit, M's largest
         kurtosis = n - 2.0 + 1.0 / (n - 1.0)
     amplitude = math.sqrt(energy)
     norm2 = energy / dt

@@ -33,7 +33,8 @@ def run_closed_loop(controller: Controller, scenario: Scenario, round_trips: int
                     estimator: SurrogateEstimator | None = None,
                     meta: dict | None = None,
                     progress: Callable[[int], None] | None = None,
-                    measurement_noise: float = 0.0, noise_seed: int = 0) -> RunRecord:
+                    measurement_noise: float = 0.0, noise_seed: int = 0,
+                    initial: str = 'sech', initial_seed: int | None = None) -> RunRecord:
     """Run ``round_trips`` round trips of the closed loop; returns the record.
 
     ``estimator`` (optional) supplies the surrogate the controller gets with each
@@ -42,6 +43,8 @@ def run_closed_loop(controller: Controller, scenario: Scenario, round_trips: int
     ``measurement_noise`` is the relative standard deviation of independent Gaussian
     errors on the E and M that the estimator and the controller see (a detector's
     noise; seeded by ``noise_seed``); the record keeps the laser's true values.
+    ``initial`` is the laser's initial field (the spec's ``'sech'`` pulse, or ``'noise'``,
+    seeded by ``initial_seed``: a cold start from spontaneous emission).
     """
     if round_trips < 1 or period < 1:
         raise ValueError('round_trips and period must be >= 1')
@@ -49,7 +52,8 @@ def run_closed_loop(controller: Controller, scenario: Scenario, round_trips: int
         raise ValueError(f'measurement_noise must be in [0, 1), got {measurement_noise}')
     noise = np.random.default_rng(noise_seed)
     angles = np.zeros(4) if initial_angles is None else np.asarray(initial_angles, float)
-    cavity = Cavity(cavity_config, batch=1, angles=angles, birefringence=scenario(1))
+    cavity = Cavity(cavity_config, batch=1, angles=angles, birefringence=scenario(1),
+                    initial=initial, seed=initial_seed)
     builder = RecordBuilder(meta)
     observe_truth = getattr(controller, 'observe_truth', None)
     for r in range(1, round_trips + 1):

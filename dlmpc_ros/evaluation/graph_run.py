@@ -37,9 +37,11 @@ def record_from_csv(run_csv: Path, meta: dict | None = None) -> RunRecord:
 def run_graph(out_dir: Path, controller: str, scenario: str, settings: list[str],
               round_trips: int, period: int, initial_angles: np.ndarray,
               domain_id: int, lockstep: bool = True, models_dir: Path | None = None,
-              meta: dict | None = None, record_bag: Path | None = None) -> RunRecord:
-    """Run the bringup for one closed loop (recording a bag to ``record_bag`` if given);
-    raises RuntimeError if it fails."""
+              meta: dict | None = None, record_bag: Path | None = None,
+              plant: list[str] = ()) -> RunRecord:
+    """Run the bringup for one closed loop (recording a bag to ``record_bag`` if given;
+    ``plant``: the simulator's ``KEY=VALUE`` plant settings); raises RuntimeError if it
+    fails."""
     out_dir.mkdir(parents=True, exist_ok=True)
     csv_path = out_dir / 'run.csv'
     cmd = [sys.executable, '-m', 'dlmpc_ros.bringup', '--controller', controller,
@@ -49,6 +51,8 @@ def run_graph(out_dir: Path, controller: str, scenario: str, settings: list[str]
            '--domain-id', str(domain_id)]
     for item in settings:
         cmd += ['--scenario-param', item]
+    for item in plant:
+        cmd += ['--plant', item]
     if lockstep:
         cmd.append('--lockstep')
     if models_dir is not None:

@@ -46,7 +46,7 @@ class MetricSettings:
         checks.positive(self, 'step_threshold')
 
 
-def _first_hold(locked: np.ndarray, start: int, hold: int) -> int | None:
+def first_hold(locked: np.ndarray, start: int, hold: int) -> int | None:
     """Index of the first run of ``hold`` consecutive True at or after ``start``."""
     run = 0
     for i in range(start, locked.size):
@@ -69,11 +69,11 @@ def run_metrics(record: RunRecord, envelope: dict[str, np.ndarray],
     o_star = envelope_objective(envelope, record.K)
     locked = o >= s.lock_fraction * o_star
     hold = min(s.hold, max(1, o.size // 4))
-    acquired = _first_hold(locked, 0, hold)
+    acquired = first_hold(locked, 0, hold)
     jumps = np.flatnonzero(np.abs(np.diff(record.K)) > s.step_threshold) + 1
     recoveries = []
     for j in jumps:
-        back = _first_hold(locked, int(j), hold)
+        back = first_hold(locked, int(j), hold)
         recoveries.append(None if back is None else int(back - j))
     done = [r for r in recoveries if r is not None]
     after = slice(acquired if acquired is not None else o.size, None)

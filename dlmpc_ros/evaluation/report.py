@@ -89,11 +89,12 @@ def seed_summary(runs: list[dict]) -> str:
     return '\n'.join(lines) + '\n'
 
 
-def write_summary(out: Path, runs: list[dict]) -> None:
+def write_summary(out: Path, runs: list[dict], plant: dict | None = None) -> None:
     """``OUT/metrics.json`` (every run) and ``OUT/table.md`` (per scenario and controller,
-    then every run)."""
+    then every run); ``plant`` (the physical parameters that differ from the nominal
+    cavity) is written beside them."""
     add_oracle_controller_ratio(runs)
-    summary: dict = {'runs': runs}
+    summary: dict = {'plant': dict(plant or {}), 'runs': runs}
     if len(runs) == 1:
         summary.update(runs[0]['metrics'])
     (out / 'metrics.json').write_text(json.dumps(summary, indent=2))
@@ -102,3 +103,57 @@ def write_summary(out: Path, runs: list[dict]) -> None:
         f'oracle_ratio (mean O / mean O*(K)), mean over {seeds} seed(s)'
         + (' (min-max)' if seeds > 1 else '') + ':\n\n' + seed_summary(runs)
         + '\nEvery run:\n\n' + markdown_table(runs))
+
+
+def plant_table(runs: list[dict], value: str = 'oracle_ratio') -> str:
+    """Markdown: plant (rows) x controller (columns) per scenario, the mean of ``value``
+    over seeds (min-max)."""
+    lines = []
+    for scenario in dict.fromkeys(r['scenario'] for r in runs):
+        mine = [r for r in runs if r['scenario'] == scenario]
+        controllers = list(dict.fromkeys(r['controller'] for r in mine))
+        lines += [f'{scenario}:', '', '| plant | ' + ' | '.join(controllers) + ' |',
+                  '|---|' + '---|' * len(controllers)]
+        for plant in dict.fromkeys(r['plant'] for r in mine):
+            cells = []
+            for controller in controllers:
+                values = [r['metrics'][value] for r in mine if r['plant'] == plant
+                          and r['controller'] == controller
+                          and r['metrics'].get(value) is not None]
+                cells.append('-' if not values else f'{np.mean(values):.3f}' if len(values) == 1
+                             else f'{np.mean(values):.3f} ({min(values):.3f}-{max(values):.3f})')
+            lines.append(f'| {plant} | ' + ' | '.join(cells) + ' |')
+        lines.append('')
+    return '\n'.join(lines)
+
+
+def write_plant_table(out: Path, runs: list[dict], plants: dict[str, dict],
+                      wall_seconds: float, workers: int) -> None:
+    """``OUT/metrics.json`` and ``OUT/table.md`` over every plant: each run's ratio is to
+    its own plant's envelope."""
+    (out / 'metrics.json').write_text(json.dumps(
+        {'plants': plants, 'wall_seconds': wall_seconds, 'workers': workers, 'runs': runs},
+        indent=2))
+    (out / 'table.md').write_text(
+        'oracle_ratio (mean O / mean O*(K), each plant\'s own envelope), mean over seeds '
+        f'(min-max); {len(runs)} runs in {wall_seconds:.0f} s on {workers} worker(s):\n\n'
+        + plant_table(runs) + '\nPlants (physical parameters that differ from the nominal '
+        'cavity):\n\n' + '\n'.join(f'- {label}: {json.dumps(params)}'
+                                      for label, params in plants.items()) + '\n')
+
+
+def lock_table(summary: dict) -> str:
+    """Markdown of the lock benchmark: success rate and times per plant and controller."""
+    s = summary['settings']
+    lines = [f"Auto-mode-locking: {s['starts']} cold starts per plant (random angles, noise "
+             f"field, K {s['drift']}), budget {s['budget']} round trips; locked = O >= "
+             f"{s['lock_fraction']} O*(K) for {s['hold_periods']} periods.", '',
+             '| plant | controller | success | median round trips | p90 round trips | '
+             'median periods |', '|---|---|---|---|---|---|']
+    for plant, entry in summary['plants'].items():
+        for controller, m in entry['controllers'].items():
+            cells = ['-' if m[key] is None else f'{m[key]:.0f}' for key in (
+                'median_round_trips', 'p90_round_trips', 'median_control_periods')]
+            lines.append(f"| {plant} | {controller} | {100 * m['success_rate']:.0f} % | "
+                         + ' | '.join(cells) + ' |')
+    return '\n'.join(lines) + '\n'

@@ -4,7 +4,7 @@ process (``fast``) or through the node graph, described by a :class:`RunSpec`.""
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from dlmpc_ros.control.estimator import SurrogateEstimator
@@ -12,6 +12,9 @@ from dlmpc_ros.control.factory import load_estimator, make_controller
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.step import Controller
 from dlmpc_ros.core import checks
+from dlmpc_ros.core.config import CavityConfig
+from dlmpc_ros.core.plants import (NOMINAL, PHYSICS_FIELDS, plant_fingerprint,
+                                   plant_parameters)
 from dlmpc_ros.evaluation.closed_loop import random_initial_angles, run_closed_loop
 from dlmpc_ros.evaluation.presets import PRESETS, preset_scenario, run_settings
 from dlmpc_ros.evaluation.record import RunRecord
@@ -42,6 +45,9 @@ class RunSpec:
     """Relative Gaussian noise on the E and M the estimator and controller see (fast)."""
     mode: str = 'fast'
     """One of :data:`MODES`."""
+    plant: dict = field(default_factory=dict)
+    """Physical parameters of the simulated cavity that differ from the nominal one
+    (:mod:`dlmpc_ros.core.plants`); they reach the simulator, never the controller."""
 
     def __post_init__(self) -> None:
         if self.scenario not in PRESETS:
@@ -52,6 +58,16 @@ class RunSpec:
         checks.counts(self, 'round_trips', 'period')
         checks.positive(self, 'max_step')
         checks.non_negative(self, 'measurement_noise')
+        unknown = set(self.plant) - set(PHYSICS_FIELDS)
+        if unknown:
+            raise ValueError(f'RunSpec.plant sets {sorted(unknown)}, which are not physical '
+                             f'parameters of the cavity {PHYSICS_FIELDS}')
+        self.cavity  # noqa: B018 (a plant the simulator cannot run raises here)
+
+    @property
+    def cavity(self) -> CavityConfig:
+        """The simulated cavity: the nominal one with the plant's parameters."""
+        return replace(NOMINAL, **self.plant)
 
     @property
     def run_settings(self) -> dict:
@@ -64,7 +80,9 @@ class RunSpec:
                 'controller': self.controller, 'seed': self.seed,
                 'round_trips': self.round_trips, 'period': self.period, 'mode': self.mode,
                 'initial_angles': random_initial_angles(self.seed).tolist(),
-                'measurement_noise': self.measurement_noise}
+                'measurement_noise': self.measurement_noise,
+                'plant': plant_parameters(self.cavity),
+                'plant_fingerprint': plant_fingerprint(self.cavity)}
 
 
 def run_fast(spec: RunSpec, models_dir: Path, controller: Controller | None = None,
@@ -81,8 +99,8 @@ def run_fast(spec: RunSpec, models_dir: Path, controller: Controller | None = No
     if estimator is None and spec.controller == 'dlmpc':
         estimator = load_estimator(models_dir)
     return run_closed_loop(controller, scenario, spec.round_trips, spec.period,
-                           random_initial_angles(spec.seed), estimator=estimator,
-                           meta=spec.meta(), progress=progress,
+                           random_initial_angles(spec.seed), cavity_config=spec.cavity,
+                           estimator=estimator, meta=spec.meta(), progress=progress,
                            measurement_noise=spec.measurement_noise, noise_seed=spec.seed)
 
 
@@ -98,7 +116,8 @@ def run_spec(spec: RunSpec, models_dir: Path, run_dir: Path, domain_id: int = 88
     return run_graph(run_dir, spec.controller, spec.scenario, setting_strings(spec.run_settings),
                      spec.round_trips, spec.period, random_initial_angles(spec.seed),
                      domain_id, lockstep=spec.mode == 'graph-lockstep',
-                     models_dir=models_dir, meta=spec.meta())
+                     models_dir=models_dir, meta=spec.meta(),
+                     plant=[f'{k}={v!r}' for k, v in spec.plant.items()])
 
 
 def setting_strings(settings: dict[str, object]) -> list[str]:
@@ -109,3 +128,16 @@ def setting_strings(settings: dict[str, object]) -> list[str]:
             value = ','.join(repr(float(v)) for v in value)
         out.append(f'{key}={value}')
     return out
+
+
+@dataclass(frozen=True)
+class RunTask:
+    """A fast run as a task of :func:`dlmpc_ros.scaleout.run_tasks`."""
+
+    spec: RunSpec
+    models_dir: str
+
+
+def run_task(task: RunTask) -> RunRecord:
+    """The task's run in this process (a worker's unit of work)."""
+    return run_fast(task.spec, Path(task.models_dir))

@@ -38,6 +38,7 @@ from dlmpc_ros.core.angles import angle_distance, wrap_angles
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.learning.tables import SCHEMA_VERSION
 from dlmpc_ros.training.continuation import continuation_check
+from dlmpc_ros.training.envelope import check_symmetric, mirrored
 from dlmpc_ros.training.search import best_path, compass_search
 
 
@@ -265,7 +266,7 @@ def build_baselines(sweep: dict[str, np.ndarray], envelope: dict[str, np.ndarray
     fixed_check = continuation_check(k_grid, np.broadcast_to(fixed['angles'], (k_grid.size, 4)),
                                      cavity_cfg)
     arrays = {
-        'K': k_grid, 'O_star': envelope['O_star'], 'angles': envelope['angles'],
+        **envelope_arrays(envelope),
         'tracking_angles': path['angles'], 'tracking_O': path['O'],
         'tracking_chain': path['chain'], 'tracking_breaks': np.array(path['breaks']),
         'tracking_O_up': tracking['O_up'], 'tracking_O_down': tracking['O_down'],
@@ -289,6 +290,16 @@ def build_baselines(sweep: dict[str, np.ndarray], envelope: dict[str, np.ndarray
     return arrays
 
 
+def envelope_arrays(envelope: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The envelope part of the tables: the search's envelope mirrored
+    (:func:`~dlmpc_ros.training.envelope.mirrored`), checked for its symmetry; ``K``,
+    ``O_star``, ``angles``, ``O_star_own`` (the search's own) and ``from_mirror``."""
+    env = mirrored(envelope)
+    check_symmetric(env)
+    return {key: np.asarray(env[key]) for key in ('K', 'O_star', 'angles', 'O_star_own',
+                                                  'from_mirror')}
+
+
 def summarize(arrays: dict[str, np.ndarray]) -> dict:
     """JSON-ready figures of the tables (for metrics.json and oracle.json)."""
     o_star = arrays['O_star']
@@ -298,6 +309,10 @@ def summarize(arrays: dict[str, np.ndarray]) -> dict:
     chain = arrays['tracking_chain']
     out = {
         'mean_O_star': mean_star,
+        'mirror_gain_mean': float(np.mean(o_star / arrays['O_star_own'] - 1))
+        if 'O_star_own' in arrays else None,
+        'points_from_mirror': int(np.sum(arrays['from_mirror'])) if 'from_mirror' in arrays
+        else None,
         'pointwise_jumps_over_0.3_rad': int((jumps > 0.3).sum()),
         'pointwise_jump_K': [round(float(k), 4) for k in arrays['K'][1:][jumps > 0.3]],
         'fixed_best': {

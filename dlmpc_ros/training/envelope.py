@@ -5,21 +5,40 @@ initial pulse, and the best of them is refined by the batched compass search of
 :mod:`dlmpc_ros.training.search` (angles kept in [-pi/2, pi/2)). The envelope keeps, per
 K, the better of the refined optimum and the sweep's best point (which may lie on a
 branch reached only by continuation in K). It is written to ``data/oracle.npz``
-(:mod:`dlmpc_ros.learning.tables` reads it).
+(:mod:`dlmpc_ros.learning.tables` reads it); the data's exploring policy steers near
+its angles.
+
+The yardstick of the evaluation is :func:`mirrored`: at each K the better of the search
+there and the mirror of the search at -K (:mod:`dlmpc_ros.core.symmetry`), symmetric in
+K. ``dlmpc-train baselines`` writes it into ``models/oracle.npz``.
+
+A plant (:mod:`dlmpc_ros.core.plants`) has its own envelope, :func:`plant_envelope`:
+searched on fewer K points from the nominal tables' angles and their mirrors, in minutes
+instead of the sweep's quarter of an hour, and cached by the plant's fingerprint
+(:func:`cached_plant_envelope`). :func:`draw_plant` draws a family's plants, redrawing
+one that does not mode-lock at every K.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
+import os
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from dlmpc_ros.core import checks
 from dlmpc_ros.core.angles import wrap_angles
-from dlmpc_ros.core.config import CavityConfig
-from dlmpc_ros.learning.tables import write_npz
+from dlmpc_ros.core.cavity import Cavity
+from dlmpc_ros.core.config import BIREFRINGENCE_RANGE, CavityConfig
+from dlmpc_ros.core.plants import PlantFamily, plant_fingerprint, plant_parameters
+from dlmpc_ros.core.steady import run_to_steady
+from dlmpc_ros.core.symmetry import mirror_angles
+from dlmpc_ros.learning.tables import read_npz, write_npz
+from dlmpc_ros.scaleout import TaskFailure, run_tasks
 from dlmpc_ros.training import shards
 from dlmpc_ros.training.search import compass_search, steady_scores
 
@@ -57,9 +76,16 @@ class OracleConfig:
 
 
 def refine_envelope(sweep: dict[str, np.ndarray], cavity_cfg: CavityConfig,
-                    cfg: OracleConfig, progress=None) -> dict[str, np.ndarray]:
-    """Compute the envelope from sweep data; returns arrays over the K grid."""
-    k_grid = np.unique(sweep['K'])
+                    cfg: OracleConfig, progress=None,
+                    k_indices: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Compute the envelope from sweep data; returns arrays over the K grid (or over the
+    grid points ``k_indices``). The K points are searched together: each steady-state
+    batch runs until its last laser finishes, and the fields that warm-start the next
+    step are those at that end, so a split of the grid gives a slightly different
+    envelope (``dlmpc-data oracle`` runs the whole grid as one task)."""
+    k_all = np.unique(sweep['K'])
+    k_indices = np.arange(k_all.size) if k_indices is None else np.asarray(k_indices, int)
+    k_grid = k_all[k_indices]
     n_k = k_grid.size
     good = sweep['converged'] & sweep['finite']
     # Candidates: the best converged sweep points at each K.
@@ -90,7 +116,7 @@ def refine_envelope(sweep: dict[str, np.ndarray], cavity_cfg: CavityConfig,
     best_angles, best_o = found.angles, found.objective
     # How close to a local maximum: random directions at twice the final step.
     rng = np.random.default_rng(cfg.seed)
-    dirs = rng.standard_normal((n_k, cfg.check_directions, 4))
+    dirs = rng.standard_normal((k_all.size, cfg.check_directions, 4))[k_indices]
     dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
     probe = wrap_angles(best_angles[:, None, :] + 2 * cfg.min_step * dirs)
     score, _ = steady_scores(cavity_cfg, probe.reshape(-1, 4),
@@ -111,10 +137,26 @@ def refine_envelope(sweep: dict[str, np.ndarray], cavity_cfg: CavityConfig,
     }
 
 
+@dataclass(frozen=True)
+class EnvelopeTask:
+    """The envelope of a sweep, searched by a worker."""
+
+    sweep_dir: str
+    cavity: CavityConfig
+    cfg: OracleConfig
+
+
+def envelope_of_sweep(task: EnvelopeTask) -> dict[str, np.ndarray]:
+    """:func:`refine_envelope` of the task's sweep."""
+    return refine_envelope(shards.load_dataset(task.sweep_dir), task.cavity, task.cfg)
+
+
 def generate_oracle(sweep_dir: Path, out_path: Path, cavity_cfg: CavityConfig,
-                    cfg: OracleConfig, show_progress: bool = True) -> dict:
+                    cfg: OracleConfig, show_progress: bool = True, workers: int = 1,
+                    scheduler: str | None = None) -> dict:
     """``dlmpc-data oracle``: the envelope of the sweep in ``sweep_dir``, written to
-    ``out_path`` with a .json note; returns the note."""
+    ``out_path`` with a .json note; returns the note. With workers or a scheduler it runs
+    as one task on Dask (the grid is not split: see :func:`refine_envelope`)."""
     started = time.monotonic()
     sweep = shards.load_dataset(sweep_dir)
 
@@ -123,7 +165,13 @@ def generate_oracle(sweep_dir: Path, out_path: Path, cavity_cfg: CavityConfig,
             print(f'oracle: iteration {iteration:2d}  mean O* {mean_o:.4f}  K points still '
                   f'moving {active}', flush=True)
 
-    env = refine_envelope(sweep, cavity_cfg, cfg, progress)
+    if workers == 1 and scheduler is None:
+        env = refine_envelope(sweep, cavity_cfg, cfg, progress)
+    else:
+        env, = run_tasks(envelope_of_sweep, [EnvelopeTask(str(sweep_dir), cavity_cfg, cfg)],
+                         workers, scheduler, desc='envelope', show_progress=show_progress)
+        if isinstance(env, TaskFailure):
+            raise RuntimeError(str(env))
     meta = {
         'settings': cfg.to_dict(), 'sweep_fingerprint': shards.metadata(sweep_dir).get(
             'fingerprint'), 'wall_seconds': round(time.monotonic() - started, 1),
@@ -134,3 +182,244 @@ def generate_oracle(sweep_dir: Path, out_path: Path, cavity_cfg: CavityConfig,
     }
     write_npz(out_path, env, meta)
     return meta
+
+
+# -- the mirror ---------------------------------------------------------------------------------
+
+def mirrored(envelope: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The envelope with each K's best taken over its own search and the mirror of the
+    search at -K (:mod:`dlmpc_ros.core.symmetry`): ``O_star`` becomes symmetric in K and
+    ``from_mirror`` (n_k,) marks the points whose angles are a mirrored twin's. The K grid
+    must be symmetric about 0."""
+    k = np.asarray(envelope['K'], float)
+    if not np.allclose(k, -k[::-1], atol=1e-12):
+        raise ValueError('the mirror needs a K grid symmetric about 0')
+    own, twin = np.asarray(envelope['O_star'], float), np.asarray(envelope['O_star'])[::-1]
+    use = twin > own
+    angles = np.where(use[:, None], wrap_angles(mirror_angles(envelope['angles'][::-1])),
+                      envelope['angles'])
+    return {**envelope, 'O_star': np.maximum(own, twin), 'angles': angles,
+            'O_star_own': own, 'from_mirror': use}
+
+
+def check_symmetric(envelope: dict[str, np.ndarray], rtol: float = 1e-12) -> None:
+    """ValueError unless O*(K) = O*(-K), as the mirror makes it."""
+    o = np.asarray(envelope['O_star'], float)
+    if not np.allclose(o, o[::-1], rtol=rtol, atol=0):
+        raise ValueError(f'O*(K) is not symmetric: largest relative gap '
+                         f'{np.max(np.abs(o - o[::-1]) / o):.3g}')
+
+
+# -- a plant's envelope --------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class PlantEnvelopeConfig:
+    """Settings of a plant's envelope, searched from the nominal tables (angles in rad)."""
+
+    k_points: int = 21
+    """K grid points over [-0.3, 0.3] (odd, so that the grid holds K = 0)."""
+    neighbours: int = 3
+    """Rows of each nominal table nearest each K (and their mirrors) tried from cold."""
+    first_step: float = 0.08
+    """First compass step."""
+    min_step: float = 0.005
+    """Smallest compass step."""
+    max_iterations: int = 40
+    """Compass iterations."""
+    cap: int = 300
+    """Round-trip cap of one steady-state run."""
+    chunk: int = 5
+    """Round trips between two steady-state checks."""
+
+    def __post_init__(self) -> None:
+        checks.counts(self, 'k_points', minimum=3)
+        if self.k_points % 2 == 0:
+            raise ValueError('PlantEnvelopeConfig.k_points must be odd (the grid holds 0)')
+        checks.counts(self, 'neighbours', 'max_iterations', 'cap', 'chunk')
+        checks.positive(self, 'first_step', 'min_step')
+
+    def k_grid(self) -> np.ndarray:
+        return np.linspace(*BIREFRINGENCE_RANGE, self.k_points)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+#: The nominal tables whose rows seed a plant's search (those a baselines file has).
+SEED_TABLES = ('angles', 'tracking_angles', 'tracking_refined_angles')
+
+
+def seed_candidates(tables: dict[str, np.ndarray], k_grid: np.ndarray,
+                    neighbours: int) -> np.ndarray:
+    """(n_k, n_cand, 4) angle sets to try at each K: the rows of the nominal tables
+    nearest to K and, mirrored, the rows nearest to -K."""
+    nominal_k = np.asarray(tables['K'], float)
+    out = []
+    for k in k_grid:
+        rows = []
+        for key in SEED_TABLES:
+            if key not in tables:
+                continue
+            own = np.argsort(np.abs(nominal_k - k), kind='stable')[:neighbours]
+            twin = np.argsort(np.abs(nominal_k + k), kind='stable')[:neighbours]
+            rows += [tables[key][own], wrap_angles(mirror_angles(tables[key][twin]))]
+        out.append(np.concatenate(rows))
+    return np.stack(out)
+
+
+def plant_candidates(cavity_cfg: CavityConfig, tables: dict[str, np.ndarray],
+                     cfg: PlantEnvelopeConfig) -> dict[str, np.ndarray]:
+    """Every seed candidate run from the spec's pulse at every K of the grid: ``K``
+    (n_k,), ``angles`` (n_k, n_cand, 4), ``O`` (n_k, n_cand) (-inf: not converged),
+    ``pulses`` (n_k, n_cand) and the fields ``u``, ``v`` (n_k, n_cand, n)."""
+    k_grid = cfg.k_grid()
+    cand = seed_candidates(tables, k_grid, cfg.neighbours)
+    n_k, n_c = cand.shape[:2]
+    cavity = Cavity(cavity_cfg, batch=n_k * n_c, angles=cand.reshape(-1, 4),
+                    birefringence=np.repeat(k_grid, n_c))
+    result = run_to_steady(cavity, cfg.cap, cfg.chunk)
+    score = np.where(result.converged & result.finite, result.O, -np.inf)
+    u, v = cavity.fields()
+    return {'K': k_grid, 'angles': cand, 'O': score.reshape(n_k, n_c),
+            'pulses': result.pulses.reshape(n_k, n_c),
+            'u': u.reshape(n_k, n_c, -1), 'v': v.reshape(n_k, n_c, -1)}
+
+
+def mode_locks(candidates: dict[str, np.ndarray]) -> bool:
+    """Whether some candidate holds a converged pulse (>= 1 pulse) at every K."""
+    locked = np.isfinite(candidates['O']) & (candidates['pulses'] >= 1)
+    return bool(locked.any(axis=1).all())
+
+
+def plant_envelope(cavity_cfg: CavityConfig, tables: dict[str, np.ndarray],
+                   cfg: PlantEnvelopeConfig | None = None, progress=None
+                   ) -> dict[str, np.ndarray]:
+    """The envelope O*(K) of a plant: the nominal tables' nearby rows and their mirrors
+    tried from the spec's pulse, the best at each K refined by the compass search, then
+    :func:`mirrored`. Returns ``K``, ``O_star``, ``angles`` and the search's figures."""
+    cfg = cfg or PlantEnvelopeConfig()
+    cand = plant_candidates(cavity_cfg, tables, cfg)
+    n_k = cand['K'].size
+    lanes = np.arange(n_k)
+    pick = np.argmax(cand['O'], axis=1)
+    start_o = cand['O'][lanes, pick]
+    found = compass_search(cand['angles'][lanes, pick], cand['K'], start_o,
+                           (cand['u'][lanes, pick], cand['v'][lanes, pick]), cavity_cfg,
+                           first_step=cfg.first_step, min_step=cfg.min_step,
+                           max_iterations=cfg.max_iterations, cap=cfg.cap, chunk=cfg.chunk,
+                           wrap=True, progress=progress)
+    envelope = mirrored({'K': cand['K'], 'O_star': found.objective, 'angles': found.angles})
+    envelope.update({'start_O': start_o, 'iterations': np.array(found.iterations),
+                     'mode_locks': np.array(mode_locks(cand))})
+    check_symmetric(envelope)
+    return envelope
+
+
+# -- the cache of plant envelopes and family draws ------------------------------------------
+
+def cache_dir() -> Path:
+    """Where plant envelopes and family draws are cached: ``$DLMPC_CACHE``, else
+    ``$XDG_CACHE_HOME/dlmpc_ros``, else ``~/.cache/dlmpc_ros``."""
+    if os.environ.get('DLMPC_CACHE'):
+        return Path(os.environ['DLMPC_CACHE'])
+    base = os.environ.get('XDG_CACHE_HOME') or str(Path.home() / '.cache')
+    return Path(base) / 'dlmpc_ros'
+
+
+def _settings_key(cfg: PlantEnvelopeConfig, tables: dict[str, np.ndarray]) -> str:
+    """What a cached result depends on besides the plant: the search settings and the
+    nominal tables it starts from."""
+    digest = hashlib.sha256(json.dumps(cfg.to_dict(), sort_keys=True).encode())
+    for key in ('K', *SEED_TABLES):
+        if key in tables:
+            digest.update(np.ascontiguousarray(tables[key], float).tobytes())
+    return digest.hexdigest()[:8]
+
+
+def cached_plant_envelope(cavity_cfg: CavityConfig, tables: dict[str, np.ndarray],
+                          cfg: PlantEnvelopeConfig | None = None,
+                          directory: Path | None = None, progress=None
+                          ) -> dict[str, np.ndarray]:
+    """:func:`plant_envelope`, read from the cache when it was computed before for this
+    plant, these settings and these tables; else computed and cached (``.npz`` with a
+    ``.json`` note of the plant and the wall time)."""
+    cfg = cfg or PlantEnvelopeConfig()
+    directory = Path(directory or cache_dir()) / 'envelopes'
+    path = directory / f'{plant_fingerprint(cavity_cfg)}-{_settings_key(cfg, tables)}.npz'
+    if path.is_file():
+        return read_npz(path, 'cached plant envelope', f'delete {path} to recompute it')
+    started = time.monotonic()
+    envelope = plant_envelope(cavity_cfg, tables, cfg, progress)
+    write_npz(path, envelope, {'plant': plant_parameters(cavity_cfg),
+                               'plant_fingerprint': plant_fingerprint(cavity_cfg),
+                               'settings': cfg.to_dict(),
+                               'wall_seconds': round(time.monotonic() - started, 1),
+                               'mean_O_star': float(envelope['O_star'].mean())})
+    return envelope
+
+
+#: Draws of one family seed tried before giving up.
+MAX_DRAWS = 20
+
+
+def draw_plant(family: PlantFamily, seed: int, tables: dict[str, np.ndarray],
+               cfg: PlantEnvelopeConfig | None = None, directory: Path | None = None,
+               max_draws: int = MAX_DRAWS) -> tuple[CavityConfig, int]:
+    """Plant ``seed`` of ``family`` and the attempt it took: draws ``(seed, 0)``,
+    ``(seed, 1)``, ... until one mode-locks at every K of the envelope grid (some seed
+    candidate of :func:`plant_candidates` holds a converged pulse there). The accepted
+    attempt is cached, so the same seed gives the same plant at once the next time."""
+    cfg = cfg or PlantEnvelopeConfig()
+    directory = Path(directory or cache_dir()) / 'draws'
+    family_key = hashlib.sha256(json.dumps(family.to_dict(), sort_keys=True).encode())
+    path = directory / f'{family_key.hexdigest()[:8]}-{_settings_key(cfg, tables)}-{seed}.json'
+    if path.is_file():
+        attempt = int(json.loads(path.read_text())['attempt'])
+        return family.draw(seed, attempt), attempt
+    for attempt in range(max_draws):
+        plant = family.draw(seed, attempt)
+        if mode_locks(plant_candidates(plant, tables, cfg)):
+            directory.mkdir(parents=True, exist_ok=True)
+            path.write_text(json.dumps({'seed': seed, 'attempt': attempt,
+                                        'plant': plant_parameters(plant)}, indent=2))
+            return plant, attempt
+    raise ValueError(f'no plant of family seed {seed} mode-locks at every K in {max_draws} '
+                     'draws; widen the family or choose another seed')
+
+
+# -- tasks for dlmpc-evaluate and dlmpc-data (run by dlmpc_ros.scaleout) -------------------
+
+@dataclass(frozen=True)
+class PlantTask:
+    """A family draw (``plant`` None: draw ``seed`` of ``family``) or an envelope (of
+    ``plant``), with the nominal tables it starts from."""
+
+    tables_path: str
+    """The nominal baseline tables (``models/oracle.npz``)."""
+    cache: str | None = None
+    """Cache directory (None: :func:`cache_dir`)."""
+    settings: PlantEnvelopeConfig = PlantEnvelopeConfig()
+    """The envelope search's settings."""
+    family: PlantFamily = PlantFamily()
+    """The family of a draw."""
+    seed: int = 0
+    """The family seed of a draw."""
+    plant: dict | None = None
+    """The physical parameters of an envelope's plant."""
+
+
+def draw_task(task: PlantTask) -> dict:
+    """``{'plant': parameters, 'attempt': n}`` of family seed ``task.seed``."""
+    from dlmpc_ros.learning.tables import load_baselines
+    plant, attempt = draw_plant(task.family, task.seed, load_baselines(task.tables_path),
+                                task.settings, task.cache and Path(task.cache))
+    return {'plant': plant_parameters(plant), 'attempt': attempt}
+
+
+def envelope_task(task: PlantTask) -> dict[str, np.ndarray]:
+    """The (cached) envelope of ``task.plant``."""
+    from dlmpc_ros.core.plants import NOMINAL
+    from dlmpc_ros.learning.tables import load_baselines
+    cavity = replace(NOMINAL, **(task.plant or {}))
+    return cached_plant_envelope(cavity, load_baselines(task.tables_path), task.settings,
+                                 task.cache and Path(task.cache))

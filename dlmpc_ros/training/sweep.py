@@ -4,16 +4,15 @@ Each *chain* is one angle set swept through the K grid by continuation (ascendin
 even chains, descending for odd ones, so both branches of hysteresis are sampled): the
 field is warm-started from the previous K's final state, as a laser whose birefringence
 drifts slowly would be. Each (angle set, K) point runs until the spec's steady-state rule
-holds or a round-trip cap. Chains run as lanes of one batched cavity; a finished lane
-takes the next chain. Angle sets come from a scrambled Sobol sequence over
-[-pi/2, pi/2)^4 (every element is pi-periodic), then a refinement phase perturbs the
-angle sets that reached the highest objective.
+holds or a round-trip cap. Chains run as lanes of a batched cavity, one batch per shard
+(a finished lane takes the next chain); the shards are independent tasks. Angle sets come
+from a scrambled Sobol sequence over [-pi/2, pi/2)^4 (every element is pi-periodic), then
+a refinement phase perturbs the angle sets that reached the highest objective.
 """
 
 from __future__ import annotations
 
 import math
-import sys
 import time
 import warnings
 from collections.abc import Callable
@@ -22,12 +21,12 @@ from pathlib import Path
 
 import numpy as np
 from scipy.stats import qmc
-from tqdm import tqdm
 
 from dlmpc_ros.core import checks
 from dlmpc_ros.core.angles import wrap_angles
 from dlmpc_ros.core.cavity import Cavity
 from dlmpc_ros.core.config import BIREFRINGENCE_RANGE, CavityConfig
+from dlmpc_ros.scaleout import TaskFailure, run_tasks
 from dlmpc_ros.training import shards
 
 FIELDS = ('chain', 'K', 'alpha', 'E', 'M', 'O', 'energy', 'peak', 'pulses', 'converged',
@@ -164,47 +163,67 @@ def best_angle_sets(data: dict[str, np.ndarray], count: int) -> np.ndarray:
     return np.stack([data['alpha'][data['chain'] == c][0] for c in top])
 
 
+@dataclass(frozen=True)
+class ShardTask:
+    """One shard of the sweep: its chains, run and written by a worker."""
+
+    directory: str
+    shard: int
+    chain_ids: np.ndarray
+    """(c,) chain ids of the shard, in order."""
+    angle_sets: np.ndarray
+    """(c, 4) their angle sets [rad]."""
+    cfg: SweepConfig
+    cavity: CavityConfig
+
+
+def run_shard(task: ShardTask) -> int:
+    """Run the task's chains (one batch of lanes) and write its shard; returns the points.
+
+    A chain's states depend on its own angle set and K order only (every lane of the
+    batch is an independent laser), so any split into shards gives the same data."""
+    done: dict[int, dict] = {}
+    run_chains(task.angle_sets, task.chain_ids, task.cfg, task.cavity,
+               lambda chain, samples: done.__setitem__(chain, samples))
+    parts = [done[int(c)] for c in task.chain_ids]
+    shards.write_shard(Path(task.directory), task.shard,
+                       {k: np.concatenate([p[k] for p in parts]) for k in FIELDS})
+    return int(sum(p['K'].size for p in parts))
+
+
 def generate_sweep(directory, cfg: SweepConfig, cavity_cfg: CavityConfig,
-                   show_progress: bool = True) -> dict:
-    """Run (or resume) the sweep into ``directory``; returns the dataset's metadata."""
+                   show_progress: bool = True, workers: int = 1,
+                   scheduler: str | None = None) -> dict:
+    """Run (or resume) the sweep into ``directory``, one task per shard (serially, or on
+    Dask: :func:`dlmpc_ros.scaleout.run_tasks`; the workers write the shards, so a remote
+    cluster must share ``directory``); returns the dataset's metadata."""
     directory = Path(directory)
     shards.check_metadata(directory, {'sweep': cfg.to_dict(), 'cavity': cavity_cfg.to_dict()})
     started = time.monotonic()
     sobol = sobol_angles(cfg.sobol_sets, cfg.seed)
     n_sobol = sobol.shape[0]
     per = cfg.chains_per_shard
-    n_total = n_sobol + cfg.refine_sets
-    n_shards = math.ceil(n_total / per)
-    done_shards = {i for i in range(n_shards) if shards.shard_path(directory, i).exists()}
-    bar = tqdm(total=n_total * cfg.k_points, unit='pt', desc='steady-state sweep',
-               disable=not show_progress, smoothing=0.05,
-               mininterval=1.0 if sys.stderr.isatty() else 30.0)
-    bar.update(sum(min(per, n_total - i * per) for i in done_shards) * cfg.k_points)
 
-    def run_phase(angle_sets: np.ndarray, first_id: int) -> None:
+    def run_phase(angle_sets: np.ndarray, first_id: int, desc: str) -> None:
         ids = first_id + np.arange(angle_sets.shape[0])
-        todo = np.array([not shards.shard_path(directory, i // per).exists() for i in ids])
-        pending: dict[int, dict[int, dict]] = {}
+        tasks = [ShardTask(str(directory), int(shard), ids[ids // per == shard],
+                           angle_sets[ids // per == shard], cfg, cavity_cfg)
+                 for shard in np.unique(ids // per)
+                 if not shards.shard_path(directory, int(shard)).exists()]
+        failed = [r for r in run_tasks(run_shard, tasks, workers, scheduler, desc=desc,
+                                       show_progress=show_progress)
+                  if isinstance(r, TaskFailure)]
+        if failed:
+            raise RuntimeError('sweep shards failed (the others are written; run again to '
+                               'resume): ' + '; '.join(str(f) for f in failed))
 
-        def on_chain(chain: int, samples: dict) -> None:
-            shard = chain // per
-            pending.setdefault(shard, {})[chain] = samples
-            members = range(shard * per, min((shard + 1) * per, n_total))
-            if len(pending[shard]) == len(members):
-                parts = [pending[shard][c] for c in members]
-                shards.write_shard(directory, shard, {
-                    k: np.concatenate([p[k] for p in parts]) for k in FIELDS})
-                del pending[shard]
-
-        run_chains(angle_sets[todo], ids[todo], cfg, cavity_cfg, on_chain, bar.update)
-
-    run_phase(sobol, 0)
+    run_phase(sobol, 0, 'sweep shards (Sobol)')
     if cfg.refine_sets:
         sobol_data = shards.load_dataset(directory)
         sobol_data = {k: v[sobol_data['chain'] < n_sobol] for k, v in sobol_data.items()}
         best = best_angle_sets(sobol_data, max(8, cfg.refine_sets // 8))
-        run_phase(refine_angles(best, cfg.refine_sets, cfg.refine_sigma, cfg.seed), n_sobol)
-    bar.close()
+        run_phase(refine_angles(best, cfg.refine_sets, cfg.refine_sigma, cfg.seed), n_sobol,
+                  'sweep shards (refinement)')
     data = shards.load_dataset(directory)
     return shards.finish_metadata(directory, {
         'wall_seconds_this_run': round(time.monotonic() - started, 1),

@@ -185,3 +185,21 @@ def load_trajectories(directory: Path) -> dict[str, np.ndarray]:
     settings = shards.metadata(directory)['settings']['trajectories']
     data['held_out'] = lane_seeds(TrajectoryConfig(**settings))[1]
     return data
+
+
+@dataclass(frozen=True)
+class TrajectoryTask:
+    """One trajectory dataset, generated (or resumed) by a worker into ``directory``."""
+
+    directory: str
+    envelope_path: str
+    cavity: CavityConfig
+    cfg: TrajectoryConfig
+    show_progress: bool = False
+
+
+def trajectory_task(task: TrajectoryTask) -> dict:
+    """:func:`generate_trajectories` of the task (the worker writes the shards)."""
+    from dlmpc_ros.learning.tables import load_envelope
+    return generate_trajectories(Path(task.directory), load_envelope(Path(task.envelope_path)),
+                                 task.cavity, task.cfg, task.show_progress)

@@ -135,6 +135,18 @@ def test_zero_field_has_zero_objective():
     assert result.O[0] == 0.0 and np.isfinite(result.M[0])
 
 
+@pytest.mark.parametrize('settings, decays', [({'pump': 0.0}, True), ({'loss': 5.0}, True),
+                                              ({'pump': 0.1}, False)])
+def test_a_weak_laser_runs_on_and_below_threshold_decays_to_a_zero_objective(settings, decays):
+    """Below threshold the field decays through underflow to zero: a real state, with the
+    zero field's observables (O = 0), never an error (it was a ZeroDivisionError in the
+    kernel's kurtosis once the spectrum's variance underflowed)."""
+    cavity = Cavity(CavityConfig(**settings), batch=2, birefringence=np.array([0.1, -0.2]))
+    result = cavity.run(2500)
+    assert result.finite.all() and np.isfinite(result.M).all() and (result.O[:10] > 0).all()
+    assert ((result.O[-1] == 0.0) & (result.E[-1] == 0.0)).all() == decays
+
+
 @pytest.mark.parametrize('kwargs, message', [
     ({'points': 8}, 'points must be >= 16'),
     ({'cross_phase': 0.5}, 'cross_phase \\+ four_wave must equal 1'),

@@ -66,3 +66,18 @@ def test_extra_trajectories_are_new_training_lanes(quick_data):
     extra_seeds = json.loads((quick_data / 'trajectories_extra' / 'metadata.json').read_text())
     assert not set(seeds) & set(extra_seeds['seeds'])
     assert not np.allclose(extra['K'][0], main['K'][0])
+
+
+def test_data_made_on_two_dask_workers_equals_the_serial_data(quick_data, tmp_path):
+    from dlmpc_ros.cli.data import main as data_main
+    assert data_main(['all', '--quick', '--no-progress', '--workers', '1', '--data-dir',
+                      str(tmp_path)]) == 0
+    sets = [(shards.load_dataset(d / 'sweep'), load_trajectories(d / 'trajectories'),
+             load_trajectories(d / 'trajectories_extra')) for d in (tmp_path, quick_data)]
+    for serial, parallel in zip(*sets):
+        assert set(serial) == set(parallel)
+        for key in serial:
+            np.testing.assert_array_equal(serial[key], parallel[key], err_msg=key)
+    serial, parallel = (load_envelope(d / 'oracle.npz') for d in (tmp_path, quick_data))
+    for key in serial:
+        np.testing.assert_array_equal(serial[key], parallel[key], err_msg=key)

@@ -26,8 +26,9 @@ HOW = ('fixed_best: the sweep chain with the highest worst-case steady O over K 
        'change of chain; a change of chain only between states converged at both K with '
        'equal pulse counts and angles within max_jump. tracking_refined: per-K compass '
        'search on the steady O warm-started from the path\'s continuation state, kept where '
-       'continuation up and down reproduces it. angles / O_star: copied from the oracle '
-       'envelope.')
+       'continuation up and down reproduces it. angles / O_star: the oracle envelope, '
+       'mirrored (at each K the better of its search and the mirror of the search at -K; '
+       'O_star_own: the search alone).')
 
 
 def train_baselines_stage(ws: Workspace, quick: bool = False,

@@ -1,0 +1,169 @@
+"""The auto-mode-locking benchmark: N cold starts, success rate and time to lock.
+
+The experimental literature scores auto-mode-locking by random cold starts (genetic
+algorithms: Woodward and Kelleher, Sci. Rep. 2016; Pu et al. 2019; deep RL: Li et al.,
+Photonics Research 2022). Here every start has random angles (uniform in [-pi/2, pi/2))
+and the ``noise`` initial field (a real laser starts from spontaneous emission), a K
+drawn uniformly from [-0.3, 0.3], held or drifting slowly (a random walk around it, the
+``drift`` option), and a budget of round trips. A start is locked once O >= 0.5
+O*(K(t)) has held for 20 control periods; its time to lock is the round trip at which
+that hold began. The same start (angles, K, field) is given to every controller.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from dlmpc_ros.control.factory import load_estimator, make_controller
+from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.core import checks
+from dlmpc_ros.core.config import CavityConfig
+from dlmpc_ros.core.drift import Constant, RandomWalk
+from dlmpc_ros.core.plants import NOMINAL, PHYSICS_FIELDS
+from dlmpc_ros.evaluation.closed_loop import run_closed_loop
+from dlmpc_ros.evaluation.metrics import first_hold
+from dlmpc_ros.learning.tables import envelope_objective
+
+DRIFTS = ('held', 'drift')
+
+
+@dataclass(frozen=True)
+class LockSpec:
+    """One controller's benchmark on one plant."""
+
+    controller: str
+    """Controller name (:data:`~dlmpc_ros.control.factory.CONTROLLERS`)."""
+    starts: int = 100
+    """Cold starts."""
+    budget: int = 1000
+    """Round trips per start."""
+    hold_periods: int = 20
+    """Control periods O must stay at or above the lock level to count as locked."""
+    lock_fraction: float = 0.5
+    """The lock level, as a fraction of O*(K(t))."""
+    period: int = 10
+    """Control period P [round trips]."""
+    max_step: float = 0.25
+    """Servo speed [rad per period]."""
+    drift: str = 'held'
+    """``held``: K stays at its draw; ``drift``: a random walk around it (sigma 0.05,
+    correlation time 5,000 round trips)."""
+    seed: int = 0
+    """Seed of the starts (the same for every controller)."""
+    plant: dict = field(default_factory=dict)
+    """Physical parameters of the simulated cavity that differ from the nominal one."""
+
+    def __post_init__(self) -> None:
+        checks.counts(self, 'starts', 'budget', 'hold_periods', 'period')
+        checks.counts(self, 'seed', minimum=0)
+        checks.fraction(self, 'lock_fraction')
+        checks.positive(self, 'max_step')
+        if self.drift not in DRIFTS:
+            raise ValueError(f'LockSpec.drift must be one of {DRIFTS}, got {self.drift!r}')
+        if not set(self.plant) <= set(PHYSICS_FIELDS):
+            raise ValueError(f'LockSpec.plant sets {sorted(set(self.plant) - set(PHYSICS_FIELDS))}'
+                             f', not physical parameters {PHYSICS_FIELDS}')
+
+    @property
+    def cavity(self) -> CavityConfig:
+        return replace(NOMINAL, **self.plant)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def start_conditions(seed: int, index: int) -> tuple[np.ndarray, float, int]:
+    """Start ``index`` of ``seed``: angles (4,) [rad], K, and the seed of its noise field."""
+    rng = np.random.default_rng([int(seed), int(index)])
+    angles = rng.uniform(-np.pi / 2, np.pi / 2, 4)
+    return angles, float(rng.uniform(-0.3, 0.3)), int(rng.integers(2 ** 31))
+
+
+@dataclass(frozen=True)
+class LockTask:
+    """A block of starts of one benchmark (the unit of work of a worker)."""
+
+    spec: LockSpec
+    indices: tuple[int, ...]
+    models_dir: str
+    envelope_k: np.ndarray
+    envelope_o: np.ndarray
+
+
+def run_starts(task: LockTask) -> list[dict]:
+    """Run the task's starts; per start ``index``, ``K``, ``locked``, ``round_trips``
+    (to lock; None when it did not lock within the budget)."""
+    spec = task.spec
+    models = Path(task.models_dir)
+    envelope = {'K': task.envelope_k, 'O_star': task.envelope_o}
+    limits = AngleLimits(max_step=spec.max_step)
+    dlmpc = spec.controller == 'dlmpc'
+    prototype = make_controller('dlmpc', models, limits) if dlmpc else None
+    estimator = load_estimator(models) if dlmpc else None
+    out = []
+    for index in task.indices:
+        angles, k0, noise_seed = start_conditions(spec.seed, index)
+        scenario = (Constant(offset=k0) if spec.drift == 'held' else
+                    RandomWalk(offset=k0, sigma=0.05, correlation_time=5000.0,
+                               seed=noise_seed))
+        if dlmpc:  # the models are loaded once; every start gets a controller afresh
+            controller = prototype.fresh()
+            estimator.reset()
+        else:
+            controller = make_controller(spec.controller, models, limits, initial_k=k0)
+        record = run_closed_loop(controller, scenario, spec.budget, spec.period, angles,
+                                 cavity_config=spec.cavity, estimator=estimator,
+                                 initial='noise', initial_seed=noise_seed)
+        o = np.nan_to_num(record.O, nan=0.0)
+        locked = o >= spec.lock_fraction * envelope_objective(envelope, record.K)
+        start = first_hold(locked, 0, spec.hold_periods * spec.period)
+        out.append({'index': int(index), 'K': k0, 'locked': start is not None,
+                    'round_trips': None if start is None else int(start)})
+    return out
+
+
+def lock_metrics(starts: list[dict], spec: LockSpec) -> dict:
+    """Success rate and time to lock of a benchmark's starts.
+
+    ``median_round_trips`` and ``median_control_periods`` are over the starts that
+    locked; ``p90_round_trips`` is over all starts, one that never locked counting as
+    longer than any (None when fewer than 90 % locked)."""
+    times = np.array([s['round_trips'] for s in starts if s['locked']], float)
+    success = times.size / max(len(starts), 1)
+    ordered = np.sort(np.r_[times, np.full(len(starts) - times.size, np.inf)])
+    p90 = ordered[int(np.ceil(0.9 * len(ordered))) - 1] if len(ordered) else np.inf
+    return {'starts': len(starts), 'locked': int(times.size), 'success_rate': success,
+            'median_round_trips': float(np.median(times)) if times.size else None,
+            'p90_round_trips': float(p90) if np.isfinite(p90) else None,
+            'median_control_periods': (float(np.median(times)) / spec.period
+                                       if times.size else None),
+            'round_trips_to_lock': [s['round_trips'] for s in starts]}
+
+
+def plot_lock_times(results: dict[str, dict], budget: int, title: str, path: Path) -> Path:
+    """The share of starts locked by each round trip, one line per controller."""
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
+    grid = np.arange(budget + 1)
+    for name, metrics in results.items():
+        times = np.array([t for t in metrics['round_trips_to_lock'] if t is not None], float)
+        share = (times[None, :] <= grid[:, None]).sum(axis=1) / max(metrics['starts'], 1)
+        ax.step(grid, share, where='post',
+                label=f"{name} ({100 * metrics['success_rate']:.0f} %)")
+    ax.set_xlabel('round trip')
+    ax.set_ylabel('share of cold starts locked')
+    ax.set_ylim(0, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(title)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
