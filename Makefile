@@ -8,7 +8,7 @@ OUT    ?= out
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export ROS_LOG_DIR ?= $(CURDIR)/$(OUT)/ros-log
 
-.PHONY: venv test demo evaluate bench lint data models clean
+.PHONY: venv test demo evaluate evaluate-plants bench lint data models clean
 
 venv: $(STAMP)
 
@@ -30,11 +30,28 @@ demo: $(STAMP)
 # The closing table of the closed-loop issue: every controller on every scenario, in one
 # process (about 10 minutes on 2 cores); drop --fast to run each through the node graph.
 SEEDS ?= 1 2 3
+CONTROLLERS ?= dlmpc esc ga passive fixed_best oracle
 evaluate: $(STAMP)
 	$(VENV)/bin/dlmpc-evaluate --fast --round-trips 20000 \
 	    $(foreach s,sinusoidal chirp random_walk steps,--scenario $(s)) \
-	    $(foreach c,dlmpc esc passive fixed_best oracle,--controller $(c)) \
+	    $(foreach c,$(CONTROLLERS),--controller $(c)) \
 	    $(foreach s,$(SEEDS),--seed $(s)) --out $(OUT)/evaluate
+
+# Controllers on lasers that are not the model (docs/results/plants): the nominal cavity
+# and plants 1-8 of the family, on two drifts, and the auto-mode-locking benchmark (100
+# cold starts per plant). Dask runs it on every core (WORKERS=1: serially).
+PLANTS ?= 1 2 3 4 5 6 7 8
+WORKERS ?= $(shell nproc)
+evaluate-plants: $(STAMP)
+	$(VENV)/bin/dlmpc-evaluate --fast --round-trips 20000 --nominal \
+	    $(foreach p,$(PLANTS),--plant-family $(p)) \
+	    --scenario sinusoidal --scenario random_walk $(foreach s,$(SEEDS),--seed $(s)) \
+	    $(foreach c,$(CONTROLLERS),--controller $(c)) --workers $(WORKERS) \
+	    --out $(OUT)/plants/drift
+	$(VENV)/bin/dlmpc-evaluate --benchmark lock --starts 100 --nominal \
+	    $(foreach p,$(PLANTS),--plant-family $(p)) \
+	    $(foreach c,$(CONTROLLERS),--controller $(c)) --workers $(WORKERS) \
+	    --out $(OUT)/plants/lock
 
 bench: $(STAMP)
 	$(PY) bench/bench_cavity.py --out $(OUT)/bench

@@ -242,19 +242,20 @@ def main(argv: list[str] | None = None) -> int:
         if code == 0:
             print(f'dlmpc-evaluate: wrote {args.out}/metrics.json, table.md and figures/')
         return code
+    started = time.monotonic()
     try:
         plants = resolve_plants(args, tables, tables_path)
         if args.benchmark == 'lock':
-            return lock_benchmark(args, plants)
-        return drift_benchmark(args, plants)
+            return lock_benchmark(args, plants, started)
+        return drift_benchmark(args, plants, started)
     except (ModelFileError, FileNotFoundError, RuntimeError, ValueError) as err:
         print(f'dlmpc-evaluate: {err}', file=sys.stderr)
         return 1
 
 
-def drift_benchmark(args: argparse.Namespace, plants: list[Plant]) -> int:
-    """Every plant x scenario x seed x controller run, their metrics, tables, figures."""
-    started = time.monotonic()
+def drift_benchmark(args: argparse.Namespace, plants: list[Plant], started: float) -> int:
+    """Every plant x scenario x seed x controller run, their metrics, tables, figures
+    (``started``: when the whole command, plant envelopes included, began)."""
     nested = len(plants) > 1 or plants[0].label != 'nominal'
     jobs = [(plant, spec) for plant in plants for spec in run_specs(args, plant.parameters)]
     if args.fast:
@@ -315,9 +316,8 @@ def _run_dir(out: Path, plant: Plant, spec: RunSpec, nested: bool) -> Path:
     return (out / plant.label / name) if nested else out / name
 
 
-def lock_benchmark(args: argparse.Namespace, plants: list[Plant]) -> int:
+def lock_benchmark(args: argparse.Namespace, plants: list[Plant], started: float) -> int:
     """The auto-mode-locking benchmark of every controller on every plant."""
-    started = time.monotonic()
     per_task = 10
     jobs, tasks = [], []
     for plant in plants:

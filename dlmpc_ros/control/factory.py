@@ -17,7 +17,7 @@ import numpy as np
 from dlmpc_ros.control.baselines import FixedBestController, OracleController, PassiveController
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.esc import ESCController
-from dlmpc_ros.control.ga import GAController
+from dlmpc_ros.control.ga import GAConfig, GAController
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.step import Controller
 from dlmpc_ros.learning.tables import load_baselines
@@ -72,14 +72,15 @@ def passive_angles(baselines: dict[str, np.ndarray], initial_k: float) -> np.nda
 
 
 def make_baseline(name: str, models_dir: Path, limits: AngleLimits | None = None,
-                  angles: np.ndarray | None = None, initial_k: float | None = None) -> Controller:
-    """A baseline controller: ``esc``, ``ga``, ``passive`` (``angles``, or the best for
-    ``initial_k``), ``fixed_best`` or ``oracle``."""
+                  angles: np.ndarray | None = None, initial_k: float | None = None,
+                  ga_config: GAConfig | None = None) -> Controller:
+    """A baseline controller: ``esc``, ``ga`` (with ``ga_config``), ``passive``
+    (``angles``, or the best for ``initial_k``), ``fixed_best`` or ``oracle``."""
     limits = limits or AngleLimits()
     if name == 'esc':
         return ESCController(limits=limits)
     if name == 'ga':
-        return GAController(limits=limits)
+        return GAController(ga_config, limits)
     if name not in CONTROLLERS[3:]:
         raise ValueError(f'unknown baseline {name!r}; choose one of {CONTROLLERS[1:]}')
     baselines = load_baselines(Path(models_dir) / BASELINES_FILE)

@@ -137,7 +137,7 @@ def write_plant_table(out: Path, runs: list[dict], plants: dict[str, dict],
     (out / 'table.md').write_text(
         'oracle_ratio (mean O / mean O*(K), each plant\'s own envelope), mean over seeds '
         f'(min-max); {len(runs)} runs in {wall_seconds:.0f} s on {workers} worker(s):\n\n'
-        + plant_table(runs) + '\nPlants (physical parameters that differ from the nominal '
+        + plant_table(runs) + '\nPlants (the physical parameters set on the nominal '
         'cavity):\n\n' + '\n'.join(f'- {label}: {json.dumps(params)}'
                                       for label, params in plants.items()) + '\n')
 

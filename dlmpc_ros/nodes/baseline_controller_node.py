@@ -1,9 +1,10 @@
 """baseline_controller: what a lab would use instead of DL-MPC, on the same topics.
 
-``controller`` selects ``esc`` (extremum seeking), ``passive`` (the angles best for the
-initial K, held), ``fixed_best`` (the angles with the best worst-case O over the K range)
-or ``oracle`` (evaluation only: subscribes ``/laser/sim_truth`` for the true K, which no
-other controller reads). Publishes ``/laser/angles_cmd`` and ``/controller/status`` once
+``controller`` selects ``esc`` (extremum seeking), ``ga`` (a genetic algorithm that
+searches, then holds its best), ``passive`` (the angles best for the initial K, held),
+``fixed_best`` (the angles with the best worst-case O over the K range) or ``oracle``
+(evaluation only: subscribes ``/laser/sim_truth`` for the true K, which no other
+controller reads). Publishes ``/laser/angles_cmd`` and ``/controller/status`` once
 per control period of ``/laser/state``.
 """
 
@@ -18,6 +19,7 @@ from std_msgs.msg import Float64MultiArray
 
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.control.factory import CONTROLLERS, make_baseline
+from dlmpc_ros.control.ga import GAConfig
 from dlmpc_ros.learning.checkpoint import ModelFileError
 from dlmpc_ros.paths import models_dir
 from dlmpc_ros.ros import params
@@ -25,13 +27,24 @@ from dlmpc_ros.ros.controller_base import ControllerNodeBase
 from dlmpc_ros.ros.io import QOS
 
 BASELINES = CONTROLLERS[1:]
+_GA = GAConfig()
 DEFAULTS: dict[str, object] = {'controller': 'fixed_best', 'angles': [0.0],
-                               'initial_birefringence': math.nan}
+                               'initial_birefringence': math.nan,
+                               'ga_population': _GA.population,
+                               'ga_generations': _GA.generations, 'ga_dwell': _GA.dwell,
+                               'ga_lock_objective': _GA.lock_objective,
+                               'ga_restart_level': _GA.restart_level}
 DESCRIPTIONS = {
     'controller': f'which baseline: one of {BASELINES}',
     'angles': 'passive only: the 4 angles to hold [rad] (else tuned for '
               'initial_birefringence)',
     'initial_birefringence': 'passive only: the K the passive setting was tuned for',
+    'ga_population': 'ga: angle sets per generation',
+    'ga_generations': 'ga: generations of one search',
+    'ga_dwell': 'ga: control periods an individual is held after the servos arrive, before '
+                'its O is its fitness',
+    'ga_lock_objective': 'ga: O at which the best individual counts as mode-locked and is held',
+    'ga_restart_level': 'ga: search again when O falls below this x the held O',
 }
 
 
@@ -43,11 +56,15 @@ class BaselineControllerNode(ControllerNodeBase):
             raise params.StartupError(f'controller must be one of {BASELINES}, got {name!r}')
         angles = np.array(self.values['angles'], float)
         k0 = self.values['initial_birefringence']
+        v = self.values
         try:
+            ga = GAConfig(population=v['ga_population'], generations=v['ga_generations'],
+                          dwell=v['ga_dwell'], lock_objective=v['ga_lock_objective'],
+                          restart_level=v['ga_restart_level'])
             self.controller = make_baseline(
                 name, models_dir(self.values['models_dir']), self.limits,
                 angles=angles if angles.size == 4 else None,
-                initial_k=None if math.isnan(k0) else k0)
+                initial_k=None if math.isnan(k0) else k0, ga_config=ga)
         except (ModelFileError, FileNotFoundError, ValueError) as err:
             raise params.StartupError(str(err)) from None
         self._truth: dict[int, float] = {}

@@ -220,14 +220,14 @@ class PlantEnvelopeConfig:
     """K grid points over [-0.3, 0.3] (odd, so that the grid holds K = 0)."""
     neighbours: int = 3
     """Rows of each nominal table nearest each K (and their mirrors) tried from cold."""
-    first_step: float = 0.08
-    """First compass step."""
+    first_step: float = 0.04
+    """First compass step (the seeds start near an optimum of a cavity like this one)."""
     min_step: float = 0.005
     """Smallest compass step."""
-    max_iterations: int = 40
+    max_iterations: int = 30
     """Compass iterations."""
-    cap: int = 300
-    """Round-trip cap of one steady-state run."""
+    cap: int = 150
+    """Round-trip cap of one steady-state run (of a cold start: twice this)."""
     chunk: int = 5
     """Round trips between two steady-state checks."""
 
@@ -277,7 +277,7 @@ def plant_candidates(cavity_cfg: CavityConfig, tables: dict[str, np.ndarray],
     n_k, n_c = cand.shape[:2]
     cavity = Cavity(cavity_cfg, batch=n_k * n_c, angles=cand.reshape(-1, 4),
                     birefringence=np.repeat(k_grid, n_c))
-    result = run_to_steady(cavity, cfg.cap, cfg.chunk)
+    result = run_to_steady(cavity, 2 * cfg.cap, cfg.chunk)
     score = np.where(result.converged & result.finite, result.O, -np.inf)
     u, v = cavity.fields()
     return {'K': k_grid, 'angles': cand, 'O': score.reshape(n_k, n_c),
