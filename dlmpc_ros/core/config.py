@@ -64,6 +64,20 @@ class CavityConfig:
         return asdict(self)
 
 
+#: The values each parameter may take: (low, high), both inclusive except where a
+#: parameter must be > 0. Within them the solver stays finite (checked from random angles
+#: at both ends); beyond the highs lie values that are physically meaningless here or
+#: overflow (a pump of 1e308 blows the field up every round trip).
+RANGES: dict[str, tuple[float, float]] = {
+    'dispersion': (-10.0, 10.0), 'cross_phase': (0.0, 1.0), 'four_wave': (0.0, 1.0),
+    'pump': (0.0, 100.0), 'saturation_energy': (0.0, 1000.0), 'gain_bandwidth': (0.0, 10.0),
+    'loss': (0.0, 10.0), 'fiber_length': (0.0, 10.0), 'window': (0.0, 1000.0),
+    'points': (16, 4096), 'steps_per_round_trip': (1, 1024), 'steady_tolerance': (0.0, 1.0),
+}
+#: Parameters that must be > their low (not >=).
+POSITIVE = frozenset({'saturation_energy', 'fiber_length', 'window', 'steady_tolerance'})
+
+
 def config_problems(values: dict[str, Any]) -> list[str]:
     """Return a list of human-readable problems with cavity parameter values (empty if valid).
 
@@ -86,17 +100,16 @@ def config_problems(values: dict[str, Any]) -> list[str]:
             problems.append(message)
 
     get = values.get
-    if 'points' in values:
-        need(get('points') >= 16, f"points must be >= 16, got {get('points')}")
-    if 'steps_per_round_trip' in values:
-        need(get('steps_per_round_trip') >= 1,
-             f"steps_per_round_trip must be >= 1, got {get('steps_per_round_trip')}")
-    for name in ('saturation_energy', 'fiber_length', 'window', 'steady_tolerance'):
-        if name in values:
-            need(get(name) > 0, f'{name} must be > 0, got {get(name)}')
-    for name in ('pump', 'gain_bandwidth', 'loss'):
-        if name in values:
-            need(get(name) >= 0, f'{name} must be >= 0, got {get(name)}')
+    for name, (low, high) in RANGES.items():
+        if name not in values:
+            continue
+        value = get(name)
+        if name in POSITIVE:
+            need(value > low, f'{name} must be > {low:g}, got {value}')
+        else:
+            need(value >= low, f'{name} must be >= {low:g}, got {value}')
+        need(value <= high, f'{name} must be <= {high:g} (beyond it the model is '
+                            f'meaningless or overflows), got {value:g}')
     if 'cross_phase' in values and 'four_wave' in values:
         total = get('cross_phase') + get('four_wave')
         need(abs(total - 1.0) < 1e-9,

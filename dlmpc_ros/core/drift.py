@@ -132,42 +132,71 @@ class RandomWalk:
     ``correlation_time`` round trips, reflected at the ends of [-0.3, 0.3]; K(0) = offset.
 
     The path is generated on demand in chunks from one seeded stream, so K(r) depends
-    only on the seed and r.
+    only on the seed and r. Memory stays bounded however far the round trips go: only a
+    few recent chunks are kept, with a checkpoint (start value, generator state) per chunk
+    from which an older one is made again exactly. The time to reach round trip r the
+    first time grows with r (about 10 ns per round trip).
     """
 
     offset: float = 0.0
     sigma: float = 0.1
     correlation_time: float = 2000.0
     seed: int = 0
-    _path: np.ndarray = field(init=False, repr=False)
+    _chunks: dict = field(init=False, repr=False)
+    _checkpoints: list = field(init=False, repr=False)
     _rng: np.random.Generator = field(init=False, repr=False)
 
     CHUNK = 65536
+    #: Chunks of the path kept in memory (least recently used ones are dropped).
+    KEEP = 4
+    #: Largest sigma and correlation time [round trips] of a walk within [-0.3, 0.3].
+    MAX_SIGMA, MAX_CORRELATION_TIME = K_MAX - K_MIN, 1e9
 
     def __post_init__(self) -> None:
         _check_range('random_walk', self.offset, self.offset)
-        if not self.sigma >= 0:
-            raise ValueError(f'random_walk: sigma must be >= 0, got {self.sigma}')
-        if not self.correlation_time > 0:
-            raise ValueError('random_walk: correlation_time must be > 0 round trips, '
+        if not 0 <= self.sigma <= self.MAX_SIGMA:
+            raise ValueError(f'random_walk: sigma must be in [0, {self.MAX_SIGMA:g}] (the K '
+                             f'range), got {self.sigma}')
+        if not 0 < self.correlation_time <= self.MAX_CORRELATION_TIME:
+            raise ValueError(f'random_walk: correlation_time must be in (0, '
+                             f'{self.MAX_CORRELATION_TIME:g}] round trips, '
                              f'got {self.correlation_time}')
         self.seed = int(self.seed)
         self._rng = np.random.default_rng(self.seed)
-        self._path = np.array([self.offset])
+        self._chunks = {}                                 # chunk -> K of its round trips
+        self._checkpoints = [(self.offset, self._rng.bit_generator.state)]
 
-    def _extend_to(self, last: int) -> None:
+    def _chunk(self, c: int) -> np.ndarray:
+        """K at round trips ``c * CHUNK + 1 .. (c + 1) * CHUNK``."""
+        if c in self._chunks:
+            self._chunks[c] = self._chunks.pop(c)         # most recently used last
+            return self._chunks[c]
         decay = math.exp(-1.0 / self.correlation_time)
         kick = self.sigma * math.sqrt(1.0 - decay * decay)
-        while self._path.shape[0] <= last:
-            noise = self._rng.standard_normal(self.CHUNK)
-            more = _ou_extend(self._path[-1], noise, self.offset, decay, kick, K_MIN, K_MAX)
-            self._path = np.concatenate([self._path, more])
+        first = min(c, len(self._checkpoints) - 1)
+        start, state = self._checkpoints[first]
+        rng = np.random.default_rng()
+        rng.bit_generator.state = state
+        for chunk in range(first, c + 1):
+            values = _ou_extend(start, rng.standard_normal(self.CHUNK), self.offset, decay,
+                                kick, K_MIN, K_MAX)
+            start = values[-1]
+            if chunk + 1 == len(self._checkpoints):
+                self._checkpoints.append((start, rng.bit_generator.state))
+        self._chunks[c] = values
+        while len(self._chunks) > self.KEEP:
+            self._chunks.pop(next(iter(self._chunks)))
+        return values
 
     def __call__(self, round_trip):
         r = _as_round_trips(round_trip).astype(np.int64)
-        if r.size:
-            self._extend_to(int(r.max()))
-        return _scalar_or_array(self._path[r], round_trip)
+        out = np.full(r.shape, float(self.offset))
+        later = r > 0
+        chunk = (r - 1) // self.CHUNK
+        for c in np.unique(chunk[later]):
+            here = later & (chunk == c)
+            out[here] = self._chunk(int(c))[(r[here] - 1) % self.CHUNK]
+        return _scalar_or_array(out, round_trip)
 
 
 @dataclass(frozen=True)

@@ -38,12 +38,17 @@ DESCRIPTIONS = {
     'path': 'CSV (round_trip, K) for replay',
 }
 READ_ONLY = frozenset(DEFAULTS)
+RANGES = {'publish_every': (1, 10 ** 6)}
+#: A state may run at most this many round trips past the furthest one seen: the drift is
+#: made round trip by round trip (a random walk's path up to r costs time in r), so a
+#: round trip far ahead (a corrupt counter) is dropped instead of stalling the node.
+MAX_AHEAD = 10 ** 6
 
 
 class DriftInjectorNode(Node):
     def __init__(self) -> None:
         super().__init__('drift_injector')
-        values = params.declare(self, DEFAULTS, DESCRIPTIONS, READ_ONLY)
+        values = params.declare(self, DEFAULTS, DESCRIPTIONS, READ_ONLY, RANGES)
         settings = {name: values[name] for name in PARAMETER_NAMES
                     if self.get_parameter(name).type_ != Parameter.Type.NOT_SET}
         try:
@@ -54,6 +59,7 @@ class DriftInjectorNode(Node):
         if self.publish_every < 1:
             raise params.StartupError(f'publish_every must be >= 1, got {self.publish_every}')
         self._warn = itf.RateLimitedLog(self.get_logger().warning)
+        self._furthest = 0
         self._pub = self.create_publisher(Float64MultiArray, itf.TOPIC_BIREFRINGENCE,
                                           QOS[itf.TOPIC_BIREFRINGENCE])
         self.create_subscription(Float64MultiArray, itf.TOPIC_STATE, self._on_state,
@@ -64,6 +70,11 @@ class DriftInjectorNode(Node):
         if not itf.usable_state(msg.data, self._warn):
             return
         round_trip = int(msg.data[0])
+        if round_trip > self._furthest + MAX_AHEAD:
+            self._warn.dropped(itf.TOPIC_STATE, f'round_trip {round_trip} runs more than '
+                               f'{MAX_AHEAD} past the furthest seen ({self._furthest})')
+            return
+        self._furthest = max(self._furthest, round_trip)
         if round_trip % self.publish_every == 0:
             k = float(self.scenario(round_trip + 1))
             self._pub.publish(vector_message(itf.BIREFRINGENCE_FIELDS, [k]))

@@ -28,6 +28,7 @@ from std_msgs.msg import Float64MultiArray
 
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.core.cavity import INITIAL_CONDITIONS, Cavity
+from dlmpc_ros.core.config import RANGES as CAVITY_RANGES
 from dlmpc_ros.core.config import CavityConfig, config_problems
 from dlmpc_ros.ros import params
 from dlmpc_ros.ros.io import QOS, vector_message
@@ -41,11 +42,25 @@ DEFAULTS: dict[str, object] = {
     'lockstep_period': 0, 'lockstep_birefringence': False, 'lockstep_timeout': 10.0,
 }
 DESCRIPTIONS = {
+    'dispersion': 'D, averaged group-velocity dispersion (normal < 0; normalized units)',
+    'cross_phase': 'A, cross-phase modulation coefficient (A + B = 1)',
+    'four_wave': 'B, four-wave-mixing coefficient (A + B = 1)',
+    'pump': 'g0, pump strength of the saturable gain 2 g0 / (1 + energy / E0)',
+    'saturation_energy': 'E0, gain saturation energy (normalized units)',
+    'gain_bandwidth': 'tau, parabolic gain bandwidth: gain g (1 - tau k^2)',
+    'loss': 'Gamma, distributed fiber loss per unit length',
+    'fiber_length': 'Z, fiber length of one round trip (normalized units)',
+    'window': 'T, width of the periodic time window (normalized units)',
+    'points': 'n, time (and wavenumber) grid points',
+    'steps_per_round_trip': 'symmetric split steps of the fiber pass',
+    'steady_tolerance': 'relative change of the amplitude per round trip below which the '
+                        'laser is at steady state',
     'initial_angles': 'alpha1, alpha2, alpha3, alpha_p at start [rad]',
     'initial_birefringence': 'K at start, until /laser/birefringence says otherwise',
     'initial': f'initial field, one of {INITIAL_CONDITIONS}',
     'seed': 'seed of the noise initial condition',
-    'round_trips_per_second': 'pace of the simulation; 0 runs as fast as possible',
+    'round_trips_per_second': 'pace of the simulation [round trips/s]; 0 runs as fast as '
+                              'possible',
     'max_round_trips': 'stop after this many round trips; 0 runs until shut down',
     'angle_limit': 'angle commands with any |alpha| above this [rad] are rejected',
     'birefringence_limit': 'K messages with |K| above this are rejected',
@@ -55,17 +70,29 @@ DESCRIPTIONS = {
     'lockstep_period': 'wait for an angle command after every round trip r with r % '
                        'lockstep_period == 0 (0: free-run)',
     'lockstep_birefringence': 'wait for a K message after every round trip',
-    'lockstep_timeout': 'seconds to wait in lockstep before warning and going on',
+    'lockstep_timeout': 'time to wait in lockstep before warning and going on [s]',
 }
 READ_ONLY = frozenset({'points', 'window', 'initial', 'seed', 'initial_angles',
                        'initial_birefringence', 'wait_for_subscribers', 'lockstep_period',
                        'lockstep_birefringence'})
+#: The values each numeric parameter may take: the cavity's (core.config.RANGES) and the
+#: node's own, all of which the node can run (no overflowing waits, no endless loops).
+RANGES: dict[str, tuple[float, float]] = {
+    **CAVITY_RANGES,
+    'initial_birefringence': (-1.0, 1.0), 'seed': (0, 2 ** 31 - 1),
+    'round_trips_per_second': (0.0, 1e6), 'max_round_trips': (0, 2 ** 53),
+    'angle_limit': (0.0, 100.0), 'birefringence_limit': (0.0, 10.0),
+    'wait_for_subscribers': (0, 1000), 'lockstep_period': (0, 10 ** 6),
+    'lockstep_timeout': (0.001, 3600.0),
+}
+#: Slowest pace that is not free-running [round trips per second].
+MIN_RATE = 1e-3
 
 
 class LaserSimNode(Node):
     def __init__(self) -> None:
         super().__init__('laser_sim')
-        self.values = params.declare(self, DEFAULTS, DESCRIPTIONS, READ_ONLY)
+        self.values = params.declare(self, DEFAULTS, DESCRIPTIONS, READ_ONLY, RANGES)
         problems = self._problems(self.values)
         if problems:
             raise params.StartupError('; '.join(problems))
@@ -80,6 +107,7 @@ class LaserSimNode(Node):
         # Counters (under _lock): valid commands and K received, rejected messages, ...
         self.counts = dict.fromkeys(itf.LASER_STATUS_FIELDS[2:], 0)
         self._warn = itf.RateLimitedLog(self.get_logger().warning)
+        self._error = itf.RateLimitedLog(self.get_logger().error)
         self._state_pub = self.create_publisher(Float64MultiArray, itf.TOPIC_STATE,
                                                 QOS[itf.TOPIC_STATE])
         self._objective_pub = self.create_publisher(Float64MultiArray, itf.TOPIC_OBJECTIVE,
@@ -116,9 +144,13 @@ class LaserSimNode(Node):
         for name in ('round_trips_per_second', 'max_round_trips', 'angle_limit',
                      'birefringence_limit', 'initial_birefringence', 'wait_for_subscribers',
                      'lockstep_period', 'lockstep_timeout'):
-            value = values[name]
-            if not math.isfinite(value) or (name != 'initial_birefringence' and value < 0):
-                problems.append(f'{name} must be finite and >= 0, got {value}')
+            value, (low, high) = values[name], RANGES[name]
+            if not (math.isfinite(value) and low <= value <= high):
+                problems.append(f'{name} must be in [{low:g}, {high:g}], got {value}')
+        rate = values['round_trips_per_second']
+        if 0 < rate < MIN_RATE:
+            problems.append(f'round_trips_per_second must be 0 (free-run) or >= {MIN_RATE:g}, '
+                            f'got {rate}')
         return problems
 
     def _apply_parameters(self, changed) -> None:
@@ -217,8 +249,8 @@ class LaserSimNode(Node):
                 seen_k = self.counts['birefringence_received']
             result = self.cavity.step()
             if not result.finite[0]:
-                self.get_logger().error(f'field blew up at round trip {self.cavity.round_trip};'
-                                        ' reset to the initial pulse')
+                self._error('blow-up', f'field blew up at round trip {self.cavity.round_trip};'
+                            ' reset to the initial pulse')
                 self.cavity.reset()
                 with self._lock:
                     self.counts['resets'] += 1

@@ -7,7 +7,8 @@ import threading
 from collections.abc import Callable, Mapping
 
 import rclpy
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -20,17 +21,31 @@ class StartupError(ValueError):
 
 
 def declare(node: Node, defaults: Mapping[str, object], descriptions: Mapping[str, str],
-            read_only: frozenset[str] = frozenset()) -> dict[str, object]:
-    """Declare parameters with descriptions; returns their values (overrides applied).
+            read_only: frozenset[str] = frozenset(),
+            ranges: Mapping[str, tuple[float, float]] | None = None) -> dict[str, object]:
+    """Declare parameters with descriptions and, where ``ranges`` gives one, the range of
+    values (``ros2 param describe`` shows it; rclpy refuses a value outside it, at start
+    and at runtime); returns their values (overrides applied).
 
     A default of ``None`` declares a dynamically typed parameter that stays unset unless
     the user gives it.
     """
     values = {}
+    ranges = ranges or {}
     for name, default in defaults.items():
         descriptor = ParameterDescriptor(description=descriptions.get(name, ''),
                                          read_only=name in read_only,
                                          dynamic_typing=default is None)
+        if name in ranges:
+            low, high = ranges[name]
+            if isinstance(default, bool) or not isinstance(default, (int, float)):
+                raise TypeError(f'a range needs a numeric parameter; {name} is {default!r}')
+            if isinstance(default, int):
+                descriptor.integer_range = [IntegerRange(from_value=int(low),
+                                                         to_value=int(high), step=1)]
+            else:
+                descriptor.floating_point_range = [FloatingPointRange(
+                    from_value=float(low), to_value=float(high), step=0.0)]
         values[name] = node.declare_parameter(name, default, descriptor).value
     return values
 

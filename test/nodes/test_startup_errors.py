@@ -28,7 +28,14 @@ AT_ONCE = 3
 CASES = {
     # laser_sim (points and initial: test_laser_sim_node.py)
     'laser-negative-lockstep-period': (LASER, ['-p', 'lockstep_period:=-10'],
-                                       ['lockstep_period must be finite and >= 0']),
+                                       ['lockstep_period out of range', 'Min: 0']),
+    # values the simulator once accepted and then died on (pump 1e308 blew the field up
+    # every round trip; a tiny rate or a huge timeout overflowed the waits)
+    'laser-huge-pump': (LASER, ['-p', 'pump:=1e308'], ['pump out of range', 'Max: 100.0']),
+    'laser-tiny-rate': (LASER, ['-p', 'round_trips_per_second:=1e-10'],
+                        ['round_trips_per_second must be 0 (free-run) or >= 0.001']),
+    'laser-huge-timeout': (LASER, ['-p', 'lockstep_timeout:=1e300'],
+                           ['lockstep_timeout out of range']),
     'laser-initial-angles': (LASER, ['-p', 'initial_angles:=[0.1,0.2]'],
                              ['initial_angles must be 4 finite numbers']),
     'laser-wrong-type': (LASER, ['-p', 'pump:=2'], ["parameter 'pump'", "expecting type "
@@ -44,7 +51,9 @@ CASES = {
                            ['outside the model range']),
     'drift-negative-period': (DRIFT, ['-p', 'period:=-100.0'],
                               ['sinusoidal: period must be > 0']),
-    'drift-publish-every': (DRIFT, ['-p', 'publish_every:=0'], ['publish_every must be >= 1']),
+    'drift-publish-every': (DRIFT, ['-p', 'publish_every:=0'], ['publish_every out of range']),
+    'drift-huge-sigma': (DRIFT, ['-p', 'scenario:=random_walk', '-p', 'sigma:=1e300'],
+                         ['random_walk: sigma must be in [0, 0.6]']),
     # vae_estimator
     'estimator-negative-period': (ESTIMATOR, ['-p', 'period:=-10'],
                                   ['period must be an integer >= 1']),
