@@ -98,7 +98,8 @@ def csv_command(bag: Path, out: Path) -> int:
     report = bag_to_csv(bag, out)
     print(f'wrote {report.rows} rows to {report.run_csv} (K known for {report.rows_with_k})')
     print(f'wrote {report.decisions} controller decisions to {report.decisions_csv} '
-          f'(estimator latency known for {report.decisions_with_estimate})')
+          f'(estimator latency known for {report.decisions_with_estimate})'
+          f'{report.skipped_text()}')
     return 0
 
 

@@ -223,7 +223,7 @@ def evaluate_bags(args: argparse.Namespace, envelope: dict) -> int:
                 plot_surrogate(record, f'bag {label}: VAE surrogate',
                                args.out / 'figures' / f'{label}-surrogate.png')
         print(f'[{i}/{len(args.bag)}] {bag}: {report.rows} round trips, {report.decisions} '
-              f'decisions: {summary_line(metrics)}', flush=True)
+              f'decisions{report.skipped_text()}: {summary_line(metrics)}', flush=True)
     write_summary(args.out, runs)
     return 0
 

@@ -42,13 +42,20 @@ def load_dlmpc(models_dir: Path, config: DLMPCConfig | None = None) -> DLMPCCont
     """The DL-MPC controller from ``models_dir/{kmap,mprnn}.pt`` and, unless tracking is
     off, ``models_dir/track_curve.npz`` (no file holds the true K of a run)."""
     from dlmpc_ros.control.dlmpc import DLMPCController
-    from dlmpc_ros.learning.checkpoint import ModelFileError
+    from dlmpc_ros.learning.checkpoint import ModelFileError, regenerate_hint
     from dlmpc_ros.learning.curve import FILE_NAME, load_curve
     from dlmpc_ros.learning.kmap import load_kmap
     from dlmpc_ros.learning.mprnn import load_mprnn
     config = config or DLMPCConfig()
     kmap, payload = load_kmap(Path(models_dir) / 'kmap.pt')
-    target = payload['metrics'].get('subset_mean_O')
+    metrics = payload.get('metrics')
+    target = metrics.get('subset_mean_O') if isinstance(metrics, dict) else None
+    if not isinstance(metrics, dict) or not (
+            target is None or (isinstance(target, float) and np.isfinite(target)
+                               and target > 0)):
+        raise ModelFileError(f'model file {Path(models_dir) / "kmap.pt"} has malformed metrics '
+                             f'(subset_mean_O must be a positive number); '
+                             f'{regenerate_hint("kmap")}')
     curve = None
     if config.tracking is not None:
         try:

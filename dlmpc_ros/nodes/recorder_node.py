@@ -41,6 +41,9 @@ DESCRIPTIONS = {
     'wait_timeout': 'longest wait for those publishers before subscribing anyway [s]',
 }
 READ_ONLY = frozenset(DEFAULTS)
+#: Periods and waits the node can run (a timer of 1e300 s overflows).
+RANGES = {'discovery_period': (0.01, 3600.0), 'flush_period': (0.01, 3600.0),
+          'wait_timeout': (0.0, 3600.0)}
 
 
 def offered_qos(profile: QoSProfile):
@@ -55,7 +58,7 @@ def offered_qos(profile: QoSProfile):
 class RecorderNode(Node):
     def __init__(self) -> None:
         super().__init__('recorder')
-        values = params.declare(self, DEFAULTS, DESCRIPTIONS, READ_ONLY)
+        values = params.declare(self, DEFAULTS, DESCRIPTIONS, READ_ONLY, RANGES)
         output = str(values['output'])
         self.prefixes = tuple(values['topics_prefixes'])
         problems = []
@@ -66,9 +69,6 @@ class RecorderNode(Node):
         if not self.prefixes or not all(p.startswith('/') for p in self.prefixes):
             problems.append(f'topics_prefixes must be topic name prefixes starting with /, '
                             f'got {list(self.prefixes)}')
-        for name in ('discovery_period', 'flush_period', 'wait_timeout'):
-            if not 0 < values[name] < float('inf'):
-                problems.append(f'{name} must be > 0 s, got {values[name]}')
         if problems:
             raise params.StartupError('; '.join(problems))
         try:

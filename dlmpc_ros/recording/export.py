@@ -35,6 +35,15 @@ class ExportReport:
     #: /controller/status rows, and how many have the estimator's latency.
     decisions: int
     decisions_with_estimate: int
+    #: Messages left out because they did not fit their topic, per topic (if any).
+    skipped: dict[str, int]
+
+    def skipped_text(self) -> str:
+        """``'; skipped N messages that do not fit (topic N, ...)'`` or ``''``."""
+        if not self.skipped:
+            return ''
+        listing = ', '.join(f'{topic} {n}' for topic, n in self.skipped.items())
+        return f'; skipped {sum(self.skipped.values())} messages that do not fit ({listing})'
 
 
 def _by_round_trip(topic: BagTopic | None, column: int) -> dict[int, float]:
@@ -57,8 +66,9 @@ def _checked(topic: BagTopic, fields: tuple[str, ...], bag: Path) -> BagTopic:
 def bag_to_csv(bag: str | os.PathLike, run_csv: str | os.PathLike) -> ExportReport:
     """Write ``run_csv`` and its decisions CSV (:func:`decisions_path`) from a bag.
 
-    Raises :class:`BagError` if the bag has no ``/laser/state`` or its topics have the
-    wrong layout."""
+    Messages that do not fit their topic are left out and counted in the report. Raises
+    :class:`BagError` if the bag has no ``/laser/state`` or its topics have the wrong
+    layout."""
     bag, run_csv = Path(bag), Path(run_csv)
     names = {t['topic_metadata']['name'] for t in read_metadata(bag)['topics_with_message_count']}
     if itf.TOPIC_STATE not in names:
@@ -96,4 +106,5 @@ def bag_to_csv(bag: str | os.PathLike, run_csv: str | os.PathLike) -> ExportRepo
                 decisions += 1
     return ExportReport(run_csv=run_csv, decisions_csv=decisions_path(run_csv),
                         rows=len(state), rows_with_k=rows_with_k, decisions=decisions,
-                        decisions_with_estimate=decisions_with_estimate)
+                        decisions_with_estimate=decisions_with_estimate,
+                        skipped={t: v.skipped for t, v in topics.items() if v.skipped})

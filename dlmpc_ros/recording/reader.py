@@ -3,7 +3,9 @@
 Only ``std_msgs/msg/Float64MultiArray`` topics (every topic of this project) are loaded;
 each becomes a :class:`BagTopic` with one row per message. Messages of one length share
 their CDR layout, so their values are cut out of the raw bytes in one numpy operation
-(checked against rosbags' deserializer on one message of each length).
+(checked against rosbags' deserializer on one message of each length). A message that
+does not fit its topic (it does not decode as a Float64MultiArray, or its layout label is
+not the topic's) is skipped and counted in :attr:`BagTopic.skipped`; the rest is kept.
 """
 
 from __future__ import annotations
@@ -37,6 +39,8 @@ class BagTopic:
     #: (n, width) float64 message values; width is the longest message's, shorter ones
     #: are padded with NaN.
     data: np.ndarray
+    #: Messages left out because they do not fit the topic (foreign or malformed).
+    skipped: int = 0
 
     def __len__(self) -> int:
         return len(self.timestamps_ns)
@@ -105,51 +109,97 @@ def read_bag(path: str | os.PathLike, topics: Sequence[str] | None = None) -> di
         reader.close()
     result = {}
     for topic in wanted:
-        try:
-            fields, data = decode_float64_arrays(raws[topic])
-        except ValueError as err:
-            raise BagError(f'{topic} in {path}: {err}') from None
-        result[topic] = BagTopic(topic, fields, np.array(stamps[topic], dtype=np.int64), data)
+        fields, data, keep = decode_float64_arrays(raws[topic])
+        stamp = np.array(stamps[topic], dtype=np.int64)[keep]
+        result[topic] = BagTopic(topic, fields, stamp, data, len(raws[topic]) - int(keep.sum()))
     return result
 
 
-def decode_float64_arrays(raws: Sequence[bytes]) -> tuple[tuple[str, ...], np.ndarray]:
-    """Field names and (n, width) values of CDR-serialized Float64MultiArray messages;
-    ``width`` is the longest message's length, and shorter messages (the controller's
-    status holds the predicted O only in the outer loop) are padded with NaN."""
+def decode_float64_arrays(raws: Sequence[bytes]
+                          ) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+    """Field names, (k, width) values and the (n,) mask of the kept messages of
+    CDR-serialized Float64MultiArray messages.
+
+    ``width`` is the longest kept message's length, and shorter messages (the
+    controller's status holds the predicted O only in the outer loop) are padded with
+    NaN. The topic's layout is that of its most common label: a message whose fields
+    extend it or are a part of it is kept (the fields are the longest such label's); one
+    with other fields, or one that does not decode, is not."""
+    keep = np.zeros(len(raws), bool)
     if not raws:
-        return (), np.zeros((0, 0))
+        return (), np.zeros((0, 0)), keep
     store = jazzy_typestore()
-    first = store.deserialize_cdr(raws[0], FLOAT64_MULTI_ARRAY)
-    label = first.layout.dim[0].label if len(first.layout.dim) else ''
-    fields = tuple(label.split(',')) if label else ()
     lengths = np.fromiter(map(len, raws), dtype=np.int64, count=len(raws))
-    groups = [(np.flatnonzero(lengths == length),
-               _cut_values(store, [raws[i] for i in np.flatnonzero(lengths == length)],
-                           int(length)))
-              for length in np.unique(lengths)]
-    data = np.full((len(raws), max(values.shape[1] for _, values in groups)), np.nan)
-    for rows, values in groups:
-        data[rows, :values.shape[1]] = values
-    return fields, data
+    groups = []  # (message indices, label of each, values (k, width) or None per message)
+    for length in np.unique(lengths):
+        rows = np.flatnonzero(lengths == length)
+        groups.append((rows, *_cut_values(store, [raws[i] for i in rows], int(length))))
+    labels: dict[str, int] = {}
+    for _, group_labels, _ in groups:
+        for label in group_labels:
+            if label is not None:
+                labels[label] = labels.get(label, 0) + 1
+    if not labels:
+        return (), np.zeros((0, 0)), keep
+    base = _fields(max(labels, key=labels.get))
+    fits = {label for label in labels if _compatible(_fields(label), base)}
+    fields = max((_fields(label) for label in fits), key=len)
+    width = max(len(v) for _, group_labels, values in groups
+                for g, v in zip(group_labels, values) if g in fits)
+    data = np.full((len(raws), width), np.nan)
+    for rows, group_labels, values in groups:
+        for row, g, v in zip(rows, group_labels, values):
+            if g in fits:
+                keep[row] = True
+                data[row, :len(v)] = v
+    return fields, data[keep], keep
 
 
-def _cut_values(store, group: list[bytes], length: int) -> np.ndarray:
-    """(k, width) values of k messages of equal byte length."""
-    sample = store.deserialize_cdr(group[0], FLOAT64_MULTI_ARRAY)
-    width = len(sample.data)
-    head = length - 8 * width
-    raw = np.frombuffer(b''.join(group), dtype=np.uint8).reshape(len(group), length)
-    dtype = np.dtype('<f8' if group[0][1] == 1 else '>f8')  # CDR_LE / CDR_BE
-    if head >= 4 and (raw[:, :head] == raw[0, :head]).all():
-        values = np.ascontiguousarray(raw[:, head:]).view(dtype).astype(np.float64)
-        if np.array_equal(values[0], np.asarray(sample.data, dtype=float), equal_nan=True):
-            return values
-    # Layouts differ within the group (or the shortcut does not apply): decode one by one.
-    decoded = [store.deserialize_cdr(r, FLOAT64_MULTI_ARRAY).data for r in group]
-    if any(len(d) != width for d in decoded):
-        raise ValueError('messages of equal size hold different numbers of values')
-    return np.array(decoded, dtype=np.float64).reshape(len(group), width)
+def _fields(label: str) -> tuple[str, ...]:
+    return tuple(label.split(',')) if label else ()
+
+
+def _compatible(a: tuple[str, ...], b: tuple[str, ...]) -> bool:
+    """Whether one field list starts with the other (unlabelled messages fit any)."""
+    n = min(len(a), len(b))
+    return a[:n] == b[:n]
+
+
+def _cut_values(store, group: list[bytes], length: int
+                ) -> tuple[list[str | None], list[np.ndarray | None]]:
+    """Labels and values of k messages of equal byte length (None for one that does not
+    decode as a Float64MultiArray)."""
+    try:
+        sample = store.deserialize_cdr(group[0], FLOAT64_MULTI_ARRAY)
+    except Exception:  # noqa: BLE001 (foreign bytes): decode one by one below
+        sample = None
+    if sample is not None:
+        width = len(sample.data)
+        head = length - 8 * width
+        raw = np.frombuffer(b''.join(group), dtype=np.uint8).reshape(len(group), length)
+        dtype = np.dtype('<f8' if group[0][1] == 1 else '>f8')  # CDR_LE / CDR_BE
+        if head >= 4 and (raw[:, :head] == raw[0, :head]).all():
+            values = np.ascontiguousarray(raw[:, head:]).view(dtype).astype(np.float64)
+            if np.array_equal(values[0], np.asarray(sample.data, dtype=float),
+                              equal_nan=True):
+                return [_label(sample)] * len(group), list(values)
+    # Layouts differ within the group (or the shortcut does not apply): one by one.
+    labels, out = [], []
+    for raw_message in group:
+        try:
+            message = store.deserialize_cdr(raw_message, FLOAT64_MULTI_ARRAY)
+            values = np.asarray(message.data, dtype=np.float64)
+        except Exception:  # noqa: BLE001 (foreign bytes): skipped and counted
+            labels.append(None)
+            out.append(None)
+            continue
+        labels.append(_label(message))
+        out.append(values)
+    return labels, out
+
+
+def _label(message) -> str:
+    return message.layout.dim[0].label if len(message.layout.dim) else ''
 
 
 @dataclass(frozen=True)

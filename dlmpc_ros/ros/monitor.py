@@ -23,7 +23,7 @@ from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Float64MultiArray
 
 from dlmpc_ros import interfaces as itf
-from dlmpc_ros.graph import NodeGraph
+from dlmpc_ros.graph import STARTUP_ERROR, NodeGraph
 from dlmpc_ros.ros.io import QOS
 from dlmpc_ros.ros.params import stop_on_signals
 from dlmpc_ros.recording.run_csv import DECISION_FIELDS, decisions_path, write_header, write_row
@@ -199,7 +199,12 @@ def run_monitor(args: argparse.Namespace, graph: NodeGraph) -> int:
 
 
 def _report_dead(graph: NodeGraph) -> int:
-    for node in graph.died():
+    """Say which nodes died and how; 2 when one could not start with its settings (as a
+    node itself exits), 1 for any other death, 0 if none died."""
+    dead = graph.died()
+    for node in dead:
         print(f'bringup: node {node.name} exited with code {node.process.returncode}; '
               f'last lines of {node.log_path}:\n{node.log_tail()}', file=sys.stderr)
-    return 1 if graph.died() else 0
+    if any(node.process.returncode == STARTUP_ERROR for node in dead):
+        return 2
+    return 1 if dead else 0

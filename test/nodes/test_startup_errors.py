@@ -21,6 +21,7 @@ DRIFT = 'dlmpc_ros.nodes.drift_injector_node'
 ESTIMATOR = 'dlmpc_ros.nodes.vae_estimator_node'
 MPC = 'dlmpc_ros.nodes.mpc_controller_node'
 BASELINE = 'dlmpc_ros.nodes.baseline_controller_node'
+RECORDER = 'dlmpc_ros.nodes.recorder_node'
 AT_ONCE = 3
 
 #: id -> (node module, ROS arguments, texts the one message must hold). ``{models}`` is a
@@ -85,6 +86,13 @@ CASES = {
                                                           'dlmpc-train kmap']),
     'mpc-truncated': (MPC, ['-p', 'models_dir:={models}'], ['mprnn.pt is corrupt',
                                                             'dlmpc-train mprnn']),
+    # a loadable kmap.pt whose metrics are a list: an AttributeError traceback once
+    'mpc-kmap-metrics': (MPC, ['-p', 'models_dir:={models}'], ['kmap.pt has malformed metrics',
+                                                               'dlmpc-train kmap']),
+    # recorder: a timer of 1e300 s overflowed (and left a 43-byte .mcap behind)
+    'recorder-huge-period': (RECORDER, ['-p', 'output:={tmp}/bag-huge', '-p',
+                                        'discovery_period:=1e300'],
+                             ['discovery_period out of range']),
     # baseline_controller (esc needs no model file)
     'baseline-unknown-controller': (BASELINE, ['-p', 'controller:=teleport'],
                                     ['controller must be one of']),
@@ -121,6 +129,11 @@ def _damaged_models(case: str, tmp: Path) -> Path:
     elif case == 'mpc-truncated':
         data = (models / 'mprnn.pt').read_bytes()
         (models / 'mprnn.pt').write_bytes(data[:1000])
+    elif case == 'mpc-kmap-metrics':
+        import torch
+        payload = torch.load(models / 'kmap.pt', weights_only=True)
+        payload['metrics'] = [1.0, 2.0]
+        torch.save(payload, models / 'kmap.pt')
     return models
 
 

@@ -138,14 +138,33 @@ def test_read_bag_returns_arrays_equal_to_rosbags_deserialization(tmp_path):
 
 
 def test_decoding_handles_mixed_layouts_widths_and_nan():
-    raws = [serialize(('a', 'b'), [1.0, np.nan]), serialize(('x', 'y'), [3.0, 4.0]),
+    raws = [serialize(('a', 'b'), [1.0, np.nan]), serialize(('ab',), [3.0]),
             serialize(('a', 'b'), [5.0, -np.inf])]
-    fields, data = decode_float64_arrays(raws)
-    assert fields == ('a', 'b')
-    np.testing.assert_array_equal(data, [[1.0, np.nan], [3.0, 4.0], [5.0, -np.inf]])
-    # messages of different lengths: the shorter ones are padded with NaN
-    _, data = decode_float64_arrays([serialize(('a',), [1.0]), serialize(('a', 'b'), [1.0, 2.0])])
+    fields, data, keep = decode_float64_arrays(raws)
+    assert fields == ('a', 'b') and keep.tolist() == [True, False, True]
+    np.testing.assert_array_equal(data, [[1.0, np.nan], [5.0, -np.inf]])
+    # messages of different lengths whose fields extend each other (the controller's
+    # status with and without the predicted O): the shorter ones are padded with NaN
+    fields, data, keep = decode_float64_arrays([serialize(('a',), [1.0]),
+                                                serialize(('a', 'b'), [1.0, 2.0])])
     np.testing.assert_array_equal(data, [[1.0, np.nan], [1.0, 2.0]])
+    assert fields == ('a', 'b') and keep.all()
+
+
+def test_messages_that_do_not_fit_their_topic_are_skipped_and_counted(tmp_path):
+    """A std_msgs/String published on a Float64MultiArray topic, or a message of another
+    layout, once made the whole bag unreadable ("messages of equal size hold different
+    numbers of values"): now it is left out, counted, and the rest is kept."""
+    from rosbags.typesys import Stores, get_typestore
+    store = get_typestore(Stores.ROS2_JAZZY)
+    foreign = bytes(store.serialize_cdr(store.types['std_msgs/msg/String'](data='x' * 21),
+                                        'std_msgs/msg/String'))
+    good = [serialize(itf.ANGLE_FIELDS, [0.1 * i, 0.0, 0.0, 0.0]) for i in range(5)]
+    other = serialize(('x', 'y', 'z', 'w'), [9.0, 9.0, 9.0, 9.0])
+    fields, data, keep = decode_float64_arrays([*good[:2], foreign, other, *good[2:]])
+    assert fields == itf.ANGLE_FIELDS
+    assert keep.tolist() == [True, True, False, False, True, True, True]
+    np.testing.assert_allclose(data[:, 0], [0.0, 0.1, 0.2, 0.3, 0.4])
 
 
 def test_complete_chunks_reach_the_disk_while_the_bag_is_open(tmp_path):

@@ -115,3 +115,20 @@ def test_evaluate_bag_rejects_a_bag_without_laser_state(tmp_path, capsys):
         writer.add_topic(itf.TOPIC_OBJECTIVE)
     assert evaluate(['--bag', str(tmp_path / 'empty'), '--out', str(tmp_path / 'eval')]) == 1
     assert 'has no /laser/state' in capsys.readouterr().err
+
+
+def test_csv_keeps_a_bag_with_foreign_messages_and_says_how_many_it_skipped(tmp_path, capsys):
+    from rosbags.typesys import Stores, get_typestore
+    store = get_typestore(Stores.ROS2_JAZZY)
+    foreign = bytes(store.serialize_cdr(store.types['std_msgs/msg/String'](data='hello'),
+                                        'std_msgs/msg/String'))
+    with _writer(tmp_path / 'run') as writer:
+        write_run(writer, range(1, 11))
+        writer.write(itf.TOPIC_STATE, foreign, 2 * 10**18)
+        writer.write(itf.TOPIC_STATE, serialize(('x', 'y'), [1.0, 2.0]), 2 * 10**18 + 1)
+    out = tmp_path / 'csv' / 'run.csv'
+    assert main(['csv', str(tmp_path / 'run'), str(out)]) == 0
+    text = capsys.readouterr().out
+    assert 'wrote 10 rows' in text and 'skipped 2 messages that do not fit (/laser/state 2)' \
+        in text
+    np.testing.assert_array_equal(read_run_csv(out)['round_trip'], np.arange(1, 11))
