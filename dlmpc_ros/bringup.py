@@ -16,9 +16,16 @@ cleanly, 2 for bad arguments or a graph that never connected.
 
 from __future__ import annotations
 
+import signal
+import sys
+
+# A Ctrl-C while the modules below load ends the bringup quietly (nothing runs yet);
+# main() takes the signals over before it starts any node.
+for _signal in (signal.SIGINT, signal.SIGTERM):
+    signal.signal(_signal, lambda *_: sys.exit(0))
+
 import argparse
 import os
-import sys
 import time
 from pathlib import Path
 
@@ -255,9 +262,11 @@ def main(argv: list[str] | None = None) -> int:
           f'{", respawn " + ",".join(args.respawn) if args.respawn else ""}'
           f'{", plant " + str(plant) if plant else ""}', flush=True)
     from dlmpc_ros.ros.monitor import run_monitor  # rclpy only from here on
+    from dlmpc_ros.ros.params import stop_on_signals
+    requested = stop_on_signals()  # from here a Ctrl-C stops the graph in order
     graph.start()
     try:
-        code = run_monitor(args, graph)
+        code = run_monitor(args, graph, requested)
     finally:
         exit_codes = graph.stop(args.stop_timeout)
     restarts = {n.name: n.restart_count for n in graph.nodes if n.restart_count}

@@ -12,6 +12,7 @@ import argparse
 import csv
 import math
 import sys
+import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -25,7 +26,6 @@ from std_msgs.msg import Float64MultiArray
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.graph import STARTUP_ERROR, NodeGraph
 from dlmpc_ros.ros.io import QOS
-from dlmpc_ros.ros.params import stop_on_signals
 from dlmpc_ros.recording.run_csv import DECISION_FIELDS, decisions_path, write_header, write_row
 
 #: States wait at most this many rows for their K before they are written without it.
@@ -129,9 +129,10 @@ def status_line(state: list[float], k: float, rate: float) -> str:
             f'M {state[2]:7.2f}  K {k_text}  {rate:6.0f} RT/s')
 
 
-def run_monitor(args: argparse.Namespace, graph: NodeGraph) -> int:
-    """Spin the monitor until the run ends; returns the bringup's exit code so far."""
-    requested = stop_on_signals()
+def run_monitor(args: argparse.Namespace, graph: NodeGraph,
+                requested: threading.Event) -> int:
+    """Spin the monitor until the run ends or ``requested`` is set (SIGINT, SIGTERM);
+    returns the bringup's exit code so far."""
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     files = []
     writer = decision_writer = None
