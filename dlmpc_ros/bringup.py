@@ -25,7 +25,9 @@ for _signal in (signal.SIGINT, signal.SIGTERM):
     signal.signal(_signal, lambda *_: sys.exit(0))
 
 import argparse
+import fcntl
 import os
+import tempfile
 import time
 from pathlib import Path
 
@@ -107,8 +109,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help='stop after this many laser round trips (0: run until Ctrl-C)')
     p.add_argument('--rate', type=float, default=0.0,
                    help='laser round trips per second (0: as fast as possible)')
-    p.add_argument('--domain-id', type=int, default=DEFAULT_DOMAIN_ID,
-                   help='ROS_DOMAIN_ID of the graph (default: %(default)s, its own)')
+    p.add_argument('--domain-id', type=int,
+                   help=f'ROS_DOMAIN_ID of the graph (default: the exported ROS_DOMAIN_ID, '
+                        f'else {DEFAULT_DOMAIN_ID}); a second bringup on a domain in use is '
+                        'refused')
     p.add_argument('--discovery', choices=('localhost', 'subnet'), default='localhost',
                    help='ROS_AUTOMATIC_DISCOVERY_RANGE (default: %(default)s keeps the graph '
                         'off the network)')
@@ -138,6 +142,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     unknown = [n for n in args.nodes if n not in NODES]
     if unknown:
         p.error(f'unknown node(s) {unknown}; known: {sorted(NODES)}')
+    args.domain_from_env = args.domain_id is None and bool(os.environ.get('ROS_DOMAIN_ID'))
+    if args.domain_id is None:
+        try:
+            args.domain_id = int(os.environ.get('ROS_DOMAIN_ID') or DEFAULT_DOMAIN_ID)
+        except ValueError:
+            p.error(f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']!r} is not a domain id")
     if not 0 <= args.domain_id <= 232:
         p.error('--domain-id must be in 0..232')
     if args.respawn is None:
@@ -248,19 +258,75 @@ def build_graph(args: argparse.Namespace, env: dict[str, str], log_dir: Path) ->
     return NodeGraph(nodes, env, log_dir, max_restarts=args.max_restarts)
 
 
+#: Middleware settings a caller's environment may hold that would change the graph's
+#: discovery or transports; the bringup passes on only its own.
+MIDDLEWARE_PREFIXES = ('FASTDDS_', 'FASTRTPS_', 'RMW_FASTRTPS_', 'CYCLONEDDS_')
+MIDDLEWARE_NAMES = ('ROS_STATIC_PEERS', 'ROS_LOCALHOST_ONLY', 'ROS_DISCOVERY_SERVER',
+                    'ROS_SUPER_CLIENT')
+
+
+def graph_environment(args: argparse.Namespace, base: dict[str, str]
+                      ) -> tuple[dict[str, str], list[str]]:
+    """The environment of the graph's processes and the caller's middleware settings left
+    out. Discovery ``localhost`` keeps discovery and data on loopback (Fast DDS profile
+    ``config/fastdds_loopback.xml``: UDP on 127.0.0.1 and shared memory); ``subnet``
+    uses the middleware's defaults."""
+    dropped = sorted(k for k in base if k.startswith(MIDDLEWARE_PREFIXES)
+                     or k in MIDDLEWARE_NAMES)
+    env = {k: v for k, v in base.items() if k not in dropped}
+    env['ROS_DOMAIN_ID'] = str(args.domain_id)
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SUBNET'
+    if args.discovery == 'localhost':
+        # SUBNET discovery over a loopback-only transport: every socket on 127.0.0.1 (the
+        # LOCALHOST range of the rmw opens sockets on every interface beside its own)
+        env['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(config_file('fastdds_loopback.xml'))
+    return env, dropped
+
+
+def claim_domain(domain: int):
+    """Hold a lock on ``domain`` for this process (an open file; closed at exit), or
+    ValueError naming the bringup that holds it: two graphs on one domain merge."""
+    directory = Path(tempfile.gettempdir()) / 'dlmpc_ros'
+    directory.mkdir(exist_ok=True)
+    handle = open(directory / f'domain-{domain}.lock', 'a+')
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        handle.seek(0)
+        owner = handle.read().strip() or 'another process'
+        handle.close()
+        raise ValueError(f'a dlmpc_ros graph already runs on ROS domain {domain} ({owner}); '
+                         'give another --domain-id (two graphs on one domain merge)') from None
+    handle.seek(0)
+    handle.truncate()
+    handle.write(f'bringup pid {os.getpid()}')
+    handle.flush()
+    return handle
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    os.environ['ROS_DOMAIN_ID'] = str(args.domain_id)
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = args.discovery.upper()
+    try:
+        lock = claim_domain(args.domain_id)  # noqa: F841 (held until the process ends)
+    except ValueError as err:
+        print(f'bringup: {err}', file=sys.stderr)
+        return 2
+    env, dropped = graph_environment(args, dict(os.environ))
+    os.environ.clear()
+    os.environ.update(env)  # the monitor node of this process joins the same graph
     log_dir = args.log_dir or Path.home() / '.ros' / 'log' / 'dlmpc_ros' / time.strftime(
         '%Y%m%d-%H%M%S')
-    graph = build_graph(args, dict(os.environ), log_dir)
+    graph = build_graph(args, env, log_dir)
     plant = {k: v for k, v in args.laser_overrides.items() if k in PHYSICS_FIELDS}
-    print(f'bringup: domain {args.domain_id}, discovery {args.discovery}, controller '
-          f'{args.controller}{" (lockstep)" if args.lockstep else ""}, nodes '
-          f'{", ".join(args.nodes)}, logs in {log_dir}'
-          f'{", respawn " + ",".join(args.respawn) if args.respawn else ""}'
+    print(f'bringup: domain {args.domain_id}'
+          f'{" (from ROS_DOMAIN_ID)" if args.domain_from_env else ""}, discovery '
+          f'{args.discovery}, controller {args.controller}'
+          f'{" (lockstep)" if args.lockstep else ""}, nodes {", ".join(args.nodes)}, logs in '
+          f'{log_dir}{", respawn " + ",".join(args.respawn) if args.respawn else ""}'
           f'{", plant " + str(plant) if plant else ""}', flush=True)
+    if dropped:
+        print(f'bringup: not passing on the middleware settings {", ".join(dropped)} '
+              '(the graph uses its own)', flush=True)
     from dlmpc_ros.ros.monitor import run_monitor  # rclpy only from here on
     from dlmpc_ros.ros.params import stop_on_signals
     requested = stop_on_signals()  # from here a Ctrl-C stops the graph in order

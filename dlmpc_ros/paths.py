@@ -31,7 +31,7 @@ def config_file(name: str) -> Path:
     """Path of ``config/<name>`` (e.g. ``laser_sim.yaml``)."""
     path = share_dir() / 'config' / name
     if not path.is_file():
-        raise FileNotFoundError(f'missing parameter file {path}; reinstall the package')
+        raise FileNotFoundError(f'missing configuration file {path}; reinstall the package')
     return path
 
 

@@ -27,7 +27,7 @@ def test_colcon_style_install_puts_executables_where_ros2_run_looks(tmp_path):
     assert (share / 'ament_index' / 'resource_index' / 'packages' / 'dlmpc_ros').is_file()
     assert (share / 'dlmpc_ros' / 'package.xml').is_file()
     assert {p.name for p in (share / 'dlmpc_ros' / 'config').iterdir()} >= {
-        'laser_sim.yaml', 'drift_injector.yaml'}
+        'laser_sim.yaml', 'drift_injector.yaml', 'fastdds_loopback.xml'}
 
 
 def test_core_runs_without_rclpy():

@@ -46,7 +46,17 @@ def declare(node: Node, defaults: Mapping[str, object], descriptions: Mapping[st
             else:
                 descriptor.floating_point_range = [FloatingPointRange(
                     from_value=float(low), to_value=float(high), step=0.0)]
-        values[name] = node.declare_parameter(name, default, descriptor).value
+        try:
+            values[name] = node.declare_parameter(name, default, descriptor).value
+        except InvalidParameterValueException:
+            if name not in ranges:
+                raise
+            given = getattr(node, '_parameter_overrides', {}).get(name)
+            low, high = ranges[name]
+            raise StartupError(
+                f'parameter {name} = {given.value if given is not None else "?"} is outside '
+                f'its range [{low:g}, {high:g}] ({descriptions.get(name, "")}); give a value '
+                'in range') from None
     return values
 
 

@@ -69,7 +69,7 @@ def test_bringup_reports_a_node_that_dies(ros_env, tmp_path):
         env=ros_env, capture_output=True, text=True, timeout=120)
     assert proc.returncode != 0
     assert 'laser_sim exited with code 2' in proc.stderr
-    assert 'points must be >= 16' in proc.stderr
+    assert 'points = 8 is outside its range [16, 4096]' in proc.stderr
 
 
 def test_ctrl_c_stops_the_graph_cleanly(ros_env, tmp_path):
@@ -144,3 +144,92 @@ def test_ctrl_c_at_any_moment_of_start_up_stops_everything_cleanly(ros_env, tmp_
     for pid in nodes:  # every node the bringup had started is gone
         with pytest.raises(ProcessLookupError):
             os.kill(pid, 0)
+
+
+def _wait_for(proc: subprocess.Popen, text: str, timeout: float = 120.0) -> str:
+    """stdout of ``proc`` up to the first line holding ``text`` (AssertionError if it ends
+    or ``timeout`` passes first)."""
+    import time
+    lines = []
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        lines.append(proc.stdout.readline())
+        if text in lines[-1] or proc.poll() is not None:
+            break
+    out = ''.join(lines)
+    assert text in out, out
+    return out
+
+
+def test_a_bringup_keeps_its_graph_to_itself(ros_env, tmp_path):
+    """Two bringups on one domain once ran as one graph (both controllers commanding both
+    lasers); an exported ROS_DOMAIN_ID was replaced by 87 without a word; the nodes inherited
+    the caller's ROS_STATIC_PEERS and FASTDDS_* settings, and laser_sim's sockets bound every
+    interface although discovery was localhost-only."""
+    import ipaddress
+    import signal
+
+    import psutil
+
+    domain = ros_env['ROS_DOMAIN_ID']
+    env = {**ros_env, 'ROS_STATIC_PEERS': '10.11.12.13',
+           'FASTDDS_BUILTIN_TRANSPORTS': 'LARGE_DATA', 'RMW_FASTRTPS_USE_QOS_FROM_XML': '1'}
+    command = [sys.executable, '-u', '-m', 'dlmpc_ros.bringup', '--controller', 'none',
+               '--rate', '200', '--nodes', 'laser_sim,drift_injector']
+    proc = subprocess.Popen(command + ['--log-dir', str(tmp_path / 'a')], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        out = _wait_for(proc, 'graph connected')
+        assert f'domain {domain} (from ROS_DOMAIN_ID)' in out
+        assert ('not passing on the middleware settings FASTDDS_BUILTIN_TRANSPORTS, '
+                'RMW_FASTRTPS_USE_QOS_FROM_XML, ROS_STATIC_PEERS') in out
+        second = subprocess.run(command + ['--log-dir', str(tmp_path / 'b')], env=env,
+                                capture_output=True, text=True, timeout=60)
+        assert second.returncode == 2, second.stdout + second.stderr
+        assert f'already runs on ROS domain {domain}' in second.stderr
+        assert not (tmp_path / 'b').exists()
+        nodes = psutil.Process(proc.pid).children(recursive=True)
+        assert len(nodes) >= 2
+        for node in nodes:
+            environ = node.environ()
+            assert environ['ROS_DOMAIN_ID'] == domain
+            assert not {'ROS_STATIC_PEERS', 'FASTDDS_BUILTIN_TRANSPORTS',
+                        'RMW_FASTRTPS_USE_QOS_FROM_XML'} & set(environ)
+            sockets = [c.laddr.ip for c in node.net_connections('inet4')]
+            assert sockets
+            for ip in sockets:  # loopback, or the discovery multicast group
+                address = ipaddress.ip_address(ip)
+                assert address.is_loopback or address.is_multicast, (node.cmdline(), ip)
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0
+    # the domain is free again once the first graph has stopped
+    third = subprocess.Popen(command + ['--log-dir', str(tmp_path / 'c')], env=env,
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        _wait_for(third, 'graph connected')
+        third.send_signal(signal.SIGINT)
+        third.communicate(timeout=60)
+    finally:
+        if third.poll() is None:
+            third.kill()
+    assert third.returncode == 0
+
+
+@pytest.mark.parametrize('discovery', ['localhost', 'subnet'])
+def test_the_graph_environment_holds_only_the_bringups_middleware_settings(discovery):
+    from dlmpc_ros.bringup import graph_environment, parse_args
+    args = parse_args(['--domain-id', '42', '--discovery', discovery])
+    base = {'PATH': '/bin', 'ROS_DOMAIN_ID': '7', 'FASTRTPS_DEFAULT_PROFILES_FILE': '/x.xml',
+            'CYCLONEDDS_URI': 'file:///y', 'ROS_LOCALHOST_ONLY': '1'}
+    env, dropped = graph_environment(args, base)
+    assert dropped == ['CYCLONEDDS_URI', 'FASTRTPS_DEFAULT_PROFILES_FILE', 'ROS_LOCALHOST_ONLY']
+    assert env['PATH'] == '/bin' and env['ROS_DOMAIN_ID'] == '42'
+    profile = env.get('FASTRTPS_DEFAULT_PROFILES_FILE')
+    if discovery == 'localhost':  # the loopback-only transport of the package
+        assert profile and '127.0.0.1' in open(profile).read()
+    else:  # the middleware's own transports on every interface
+        assert profile is None and 'CYCLONEDDS_URI' not in env

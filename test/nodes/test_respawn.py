@@ -204,7 +204,7 @@ def test_bringup_gives_up_on_a_node_that_cannot_start(ros_env, tmp_path):
          '--domain-id', ros_env['ROS_DOMAIN_ID'], '--log-dir', str(tmp_path / 'logs'),
          '--connect-timeout', '60'],
         env=ros_env, capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert proc.returncode == 2, proc.stdout + proc.stderr
     assert 'exited with code 2; not restarting it: it cannot start with its settings' \
         in proc.stderr
     assert 'dlmpc-train' in proc.stderr  # the node's own message, from its log
