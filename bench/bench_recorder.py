@@ -27,7 +27,7 @@ from std_msgs.msg import Float64MultiArray
 
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.recording import check_round_trips, read_bag
-from dlmpc_ros.recording.repair import McapScan, find_mcap
+from dlmpc_ros.recording.repair import McapScan, find_mcaps
 from dlmpc_ros.ros.io import QOS, vector_message
 
 TOPICS = (itf.TOPIC_SIM_TRUTH, itf.TOPIC_STATE, itf.TOPIC_OBJECTIVE)
@@ -40,7 +40,7 @@ def cpu_seconds(pid: int) -> float:
 
 def flushed_count(bag: Path) -> int:
     try:
-        return sum(1 for _ in McapScan(find_mcap(bag)))
+        return sum(1 for mcap in find_mcaps(bag) for _ in McapScan(mcap))
     except (OSError, ValueError):
         return 0
 

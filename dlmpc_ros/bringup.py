@@ -250,7 +250,8 @@ def build_graph(args: argparse.Namespace, env: dict[str, str], log_dir: Path) ->
                 overrides.update(controller=args.controller,
                                  initial_birefringence=float(scenario(1)))
         elif name == 'recorder':
-            overrides = {'output': str(args.record.resolve()),
+            # append: a recorder restarted after a crash continues the bag (a new file)
+            overrides = {'output': str(args.record.resolve()), 'append': True,
                          'wait_for_publishers': ','.join(
                              t for n in args.nodes for t in PUBLISHES.get(n, ()))}
         nodes.append(NodeProcess(name, module, config_file(params), overrides,

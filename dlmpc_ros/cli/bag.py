@@ -18,7 +18,7 @@ from pathlib import Path
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.recording.export import bag_to_csv
 from dlmpc_ros.recording.reader import check_round_trips, read_bag, read_metadata
-from dlmpc_ros.recording.repair import find_mcap, repair
+from dlmpc_ros.recording.repair import repair
 from dlmpc_ros.recording.writer import BagError
 
 #: Gaps listed one by one by ``info`` (the rest are counted).
@@ -33,12 +33,14 @@ def _time(ns: int) -> str:
 
 def info(bag: Path) -> int:
     meta = read_metadata(bag)
-    mcap = find_mcap(bag)
     count = meta['message_count']
-    print(f'bag:        {bag}')
-    print(f'file:       {mcap.name} ({mcap.stat().st_size / 2**20:.2f} MiB), storage '
-          f'{meta["storage_identifier"]}, metadata version {meta["version"]}, '
-          f'ros_distro {meta.get("ros_distro", "?")}')
+    print(f'bag:        {bag}, storage {meta["storage_identifier"]}, metadata version '
+          f'{meta["version"]}, ros_distro {meta.get("ros_distro", "?")}')
+    for entry in meta.get('files') or [{'path': p} for p in meta['relative_file_paths']]:
+        path = bag / entry['path']
+        size = f'{path.stat().st_size / 2**20:.2f} MiB' if path.is_file() else 'MISSING'
+        counted = f', {entry["message_count"]} messages' if 'message_count' in entry else ''
+        print(f'file:       {entry["path"]} ({size}{counted})')
     if count:
         start = meta['starting_time']['nanoseconds_since_epoch']
         duration = meta['duration']['nanoseconds']
@@ -82,15 +84,17 @@ def _round_trip_summary(check) -> str:
 
 def repair_command(bag: Path) -> int:
     report = repair(bag)
-    if report.rewritten:
-        print(f'{report.mcap}: unfinished; rewrote {report.message_count} messages from '
-              f'{report.chunks} complete chunks ({report.dropped_bytes} bytes at the end '
-              'could not be read)')
-    else:
-        print(f'{report.mcap}: finished, {report.message_count} messages; nothing lost')
+    for file in report.files:
+        count = sum(file.counts.values())
+        if file.rewritten:
+            print(f'{file.mcap}: unfinished; rewrote {count} messages from {file.chunks} '
+                  f'complete chunks ({file.dropped_bytes} bytes at the end could not be read)')
+        else:
+            print(f'{file.mcap}: finished, {count} messages; nothing lost')
     for topic, n in report.counts.items():
         print(f'  {topic}  {n}')
-    print(f'wrote {bag / "metadata.yaml"}')
+    print(f'wrote {bag / "metadata.yaml"} ({len(report.files)} file'
+          f'{"s" if len(report.files) > 1 else ""}, {report.message_count} messages)')
     return 0
 
 

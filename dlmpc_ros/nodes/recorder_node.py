@@ -9,6 +9,9 @@ its readers, so the others are matched before it runs.
 A topic enters the bag with its first message, with its publishers' QoS profiles. On
 SIGINT/SIGTERM the bag is closed and the message counts are logged; a recorder killed
 harder loses at most ``flush_period`` seconds (``dlmpc-bag repair`` restores the rest).
+With ``append`` a recorder started on an existing bag repairs it and continues it in a
+new file (``NAME_1.mcap``, ...): the bringup restarts a killed recorder so, and the bag
+reads as one, with the round trips of the restart missing.
 """
 
 from __future__ import annotations
@@ -23,16 +26,18 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from dlmpc_ros import interfaces as itf
+from dlmpc_ros.recording.repair import resume
 from dlmpc_ros.recording.writer import FLOAT64_MULTI_ARRAY, BagError, BagWriter, make_qos
 from dlmpc_ros.ros import params
 from dlmpc_ros.ros.io import QOS, STREAM_QOS
 
-DEFAULTS: dict[str, object] = {'output': '', 'topics_prefixes': ['/laser/', '/estimator/',
-                                                                 '/controller/'],
+DEFAULTS: dict[str, object] = {'output': '', 'append': False,
+                               'topics_prefixes': ['/laser/', '/estimator/', '/controller/'],
                                'discovery_period': 1.0, 'flush_period': 0.5,
                                'wait_for_publishers': '', 'wait_timeout': 10.0}
 DESCRIPTIONS = {
-    'output': 'bag directory to create (must not exist)',
+    'output': 'bag directory to create (must not exist unless append is set)',
+    'append': 'if output is a bag already, repair it and continue it in a new file',
     'topics_prefixes': 'record every topic whose name starts with one of these',
     'discovery_period': 'look for new topics this often [s]',
     'flush_period': 'write the open chunk to disk at least this often [s]',
@@ -64,17 +69,26 @@ class RecorderNode(Node):
         problems = []
         if not output:
             problems.append('output must name the bag directory to create')
-        elif Path(output).exists():
-            problems.append(f'output {output} exists already (a bag is never overwritten)')
+        elif Path(output).exists() and not values['append']:
+            problems.append(f'output {output} exists already (a bag is never overwritten; '
+                            'set append:=true to continue it)')
         if not self.prefixes or not all(p.startswith('/') for p in self.prefixes):
             problems.append(f'topics_prefixes must be topic name prefixes starting with /, '
                             f'got {list(self.prefixes)}')
         if problems:
             raise params.StartupError('; '.join(problems))
+        verb = 'continue' if Path(output).exists() else 'create'
         try:
-            self.writer = BagWriter(output, flush_period=values['flush_period'])
+            if verb == 'continue':
+                self.writer, report = resume(output, flush_period=values['flush_period'])
+                self.get_logger().info(
+                    f'continuing {output} in {self.writer.mcap_path.name} after '
+                    f'{report.message_count} messages in {len(report.files)} file(s)'
+                    f'{" (repaired)" if report.rewritten else ""}')
+            else:
+                self.writer = BagWriter(output, flush_period=values['flush_period'])
         except (BagError, OSError) as err:
-            raise params.StartupError(f'cannot create the bag: {err}') from None
+            raise params.StartupError(f'cannot {verb} the bag: {err}') from None
         self.finished = False
         self.exit_code = 0
         self._warn = itf.RateLimitedLog(self.get_logger().warning, period=10.0)

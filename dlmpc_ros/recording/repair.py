@@ -1,17 +1,19 @@
-"""Repair a bag whose recorder died: rebuild ``metadata.yaml``, finish an unfinished MCAP.
+"""Repair a bag whose recorder died, and continue a bag in a new file.
 
 A recorder killed with SIGKILL leaves an MCAP file that ends after its last flushed chunk
 (possibly inside a chunk it was writing), with no summary section and no footer, and no
-``metadata.yaml``. ROS 2 tools and rosbags refuse such a bag. :func:`repair` reads the
-file record by record, keeps every complete (and, where the chunk has one, CRC-checked)
-chunk, and rewrites their schemas, channels and messages into a fresh, finished MCAP
-that replaces the damaged one; then it writes ``metadata.yaml`` from what was read. A
-finished MCAP is left as it is and only ``metadata.yaml`` is rebuilt.
+up-to-date ``metadata.yaml``. ROS 2 tools and rosbags refuse such a bag. :func:`repair`
+reads each unfinished file record by record, keeps every complete (and, where the chunk
+has one, CRC-checked) chunk, and rewrites their schemas, channels and messages into a
+fresh, finished MCAP that replaces the damaged one; then it writes ``metadata.yaml`` from
+what all the bag's files hold. Finished files are left as they are. :func:`resume` repairs
+a bag and opens a writer for its next file: how a restarted recorder continues its bag.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import struct
 from collections.abc import Iterator
@@ -23,15 +25,18 @@ from zlib import crc32
 from rosbags.rosbag2.metadata import parse_qos
 
 from dlmpc_ros.recording.writer import (
+    MAGIC,
+    BagContents,
     BagError,
     BagWriter,
+    FileSpan,
     TopicRecord,
     bag_metadata,
+    merge_topics,
     type_description,
     write_metadata,
 )
 
-MAGIC = b'\x89MCAP0\r\n'
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_DATA_END = (
     0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x0F)
 _FOOTER = struct.Struct('<BQQQI')  # opcode, length, summary start, summary offsets, crc
@@ -53,21 +58,38 @@ class Channel:
 
 
 @dataclass
-class RepairReport:
-    """What :func:`repair` found and did."""
+class FileRepair:
+    """What :func:`repair` found in one MCAP file of a bag."""
 
-    bag: Path
     mcap: Path
-    #: The MCAP had its summary and footer (no message lost).
+    #: The file had its summary and footer (no message lost).
     finished: bool
-    #: The MCAP was unfinished and has been rewritten into a finished one.
+    #: The file was unfinished and has been rewritten into a finished one.
     rewritten: bool
     #: Complete chunks read.
     chunks: int
-    #: Bytes at the end of an unfinished MCAP that could not be read (an incomplete chunk).
+    #: Bytes at the end of an unfinished file that could not be read (an incomplete chunk).
     dropped_bytes: int
-    #: Messages per topic in the repaired bag.
+    #: Messages per topic in the (repaired) file.
     counts: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass
+class RepairReport:
+    """What :func:`repair` found and did, file by file, and what the bag holds now."""
+
+    bag: Path
+    files: list[FileRepair]
+    contents: BagContents
+
+    @property
+    def rewritten(self) -> bool:
+        return any(f.rewritten for f in self.files)
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Messages per topic over all files."""
+        return {t.name: t.count for t in self.contents.topics}
 
     @property
     def message_count(self) -> int:
@@ -213,14 +235,23 @@ def _decompress(data: bytes, compression: str) -> bytes:
     raise ValueError(f'unsupported chunk compression {compression!r}')
 
 
-def find_mcap(bag: Path) -> Path:
-    """The one MCAP file of a bag directory."""
+def find_mcaps(bag: Path) -> list[Path]:
+    """The MCAP files of a bag directory in recording order: ``NAME.mcap`` (or
+    ``NAME_0.mcap``), ``NAME_1.mcap``, ... (rosbag2's split names), then any others by
+    name; BagError if there is none."""
     if not bag.is_dir():
         raise BagError(f'{bag} is not a bag directory')
-    files = sorted(bag.glob('*.mcap'))
-    if len(files) != 1:
-        raise BagError(f'expected one .mcap file in {bag}, found {[f.name for f in files]}')
-    return files[0]
+
+    def order(path: Path) -> tuple[int, str]:
+        match = re.fullmatch(re.escape(bag.name) + r'(?:_(\d+))?', path.stem)
+        if match is None:
+            return 2**31, path.name
+        return int(match.group(1) or 0), path.name
+
+    files = sorted(bag.glob('*.mcap'), key=order)
+    if not files:
+        raise BagError(f'no .mcap file in {bag}')
+    return files
 
 
 def _record(channel: Channel) -> TopicRecord:
@@ -235,15 +266,40 @@ def _record(channel: Channel) -> TopicRecord:
 def repair(bag_dir: str | os.PathLike) -> RepairReport:
     """Make a bag readable again after its recorder was killed.
 
-    Rebuilds ``metadata.yaml`` from the MCAP file; an unfinished MCAP (no summary or
-    footer) is first rewritten, from its complete chunks, into a finished one that
-    replaces it. Safe to run on an intact bag (only ``metadata.yaml`` is rewritten).
+    Rewrites each unfinished MCAP file (no summary or footer) from its complete chunks into
+    a finished one that replaces it, then rebuilds ``metadata.yaml`` from all the files.
+    Safe to run on an intact bag (only ``metadata.yaml`` is rewritten).
     """
     bag = Path(bag_dir)
-    mcap = find_mcap(bag)
-    scan = McapScan(mcap)
-    if scan.has_footer():
-        return _rebuild_metadata(bag, mcap, scan)
+    files, spans, parts = [], [], []
+    for mcap in find_mcaps(bag):
+        scan = McapScan(mcap)
+        rewritten = not scan.has_footer()
+        if rewritten:
+            chunks, dropped = _rewrite(bag, mcap, scan)
+            scan = McapScan(mcap)
+        span, records = _contents(mcap, scan)
+        files.append(FileRepair(mcap, not rewritten, rewritten,
+                                chunks if rewritten else scan.chunks,
+                                dropped if rewritten else 0,
+                                {r.name: r.count for r in records}))
+        spans.append(span)
+        parts.append(records)
+    contents = BagContents(tuple(spans), tuple(merge_topics(parts)))
+    write_metadata(bag, bag_metadata(contents.files, contents.topics))
+    return RepairReport(bag, files, contents)
+
+
+def resume(bag_dir: str | os.PathLike, **writer_options) -> tuple[BagWriter, RepairReport]:
+    """Repair the bag at ``bag_dir`` and open a :class:`BagWriter` that continues it in a
+    new file (keyword arguments as for BagWriter); the repair's report comes with it."""
+    report = repair(bag_dir)
+    return BagWriter(bag_dir, continues=report.contents, **writer_options), report
+
+
+def _rewrite(bag: Path, mcap: Path, scan: McapScan) -> tuple[int, int]:
+    """Rewrite the unfinished ``mcap`` from its complete chunks; the chunks read and the
+    bytes dropped."""
     tmp = bag / '.repair'
     if tmp.exists():
         shutil.rmtree(tmp)  # left over from an interrupted repair
@@ -251,23 +307,25 @@ def repair(bag_dir: str | os.PathLike) -> RepairReport:
     with BagWriter(tmp / mcap.stem, chunk_messages=2**31, flush_period=float('inf')) as writer:
         for channel, stamp, data in scan:
             if channel.topic not in writer.topics:
-                record = _record(channel)
-                writer.add_topic(channel.topic, channel.msgtype, record.offered_qos,
-                                 msgdef=channel.msgdef, type_hash=record.type_hash)
+                _add_topic(writer, channel)
             writer.write(channel.topic, data, stamp)
         for channel in scan.channels.values():  # topics without messages
             if channel.topic not in writer.topics:
-                record = _record(channel)
-                writer.add_topic(channel.topic, channel.msgtype, record.offered_qos,
-                                 msgdef=channel.msgdef, type_hash=record.type_hash)
+                _add_topic(writer, channel)
     os.replace(writer.mcap_path, mcap)
     shutil.rmtree(tmp)
-    write_metadata(bag, writer.metadata(mcap.name))
-    return RepairReport(bag, mcap, False, True, scan.chunks, scan.size - scan.end,
-                        writer.counts)
+    return scan.chunks, scan.size - scan.end
 
 
-def _rebuild_metadata(bag: Path, mcap: Path, scan: McapScan) -> RepairReport:
+def _add_topic(writer: BagWriter, channel: Channel) -> None:
+    record = _record(channel)
+    writer.add_topic(channel.topic, channel.msgtype, record.offered_qos,
+                     msgdef=channel.msgdef, type_hash=record.type_hash)
+
+
+def _contents(mcap: Path, scan: McapScan) -> tuple[FileSpan, list[TopicRecord]]:
+    """The span and topics (with counts) of one finished MCAP file, read message by
+    message."""
     records: dict[str, TopicRecord] = {}
     start, end = 2**63 - 1, 0
     for channel, stamp, _ in scan:
@@ -279,6 +337,5 @@ def _rebuild_metadata(bag: Path, mcap: Path, scan: McapScan) -> RepairReport:
     for channel in scan.channels.values():  # topics without messages
         if channel.topic not in records:
             records[channel.topic] = _record(channel)
-    write_metadata(bag, bag_metadata(mcap.name, records.values(), start, end))
-    return RepairReport(bag, mcap, True, False, scan.chunks, 0,
-                        {name: r.count for name, r in records.items()})
+    count = sum(r.count for r in records.values())
+    return FileSpan(mcap.name, start, end, count), list(records.values())

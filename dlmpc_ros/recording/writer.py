@@ -6,6 +6,10 @@ encoding ``ros2msg``, message encoding ``cdr``; written by ``rosbags``) and
 taken as the CDR bytes a raw subscription delivers, never deserialized. Timestamps are
 receive times in nanoseconds since the epoch.
 
+A bag may hold several MCAP files, in order (``NAME.mcap``, ``NAME_1.mcap``, ...; as
+rosbag2 splits a bag): a recorder restarted after a crash continues the bag in a new file
+(:func:`dlmpc_ros.recording.repair.resume`), and ``metadata.yaml`` lists every file.
+
 Crash safety: messages collect in an open MCAP chunk that is closed, written and flushed
 to the operating system every ``chunk_messages`` messages or ``flush_period`` seconds,
 whichever comes first (and on :meth:`BagWriter.flush`). A writer killed with SIGKILL
@@ -17,6 +21,8 @@ from __future__ import annotations
 
 import os
 import time
+from collections import defaultdict
+from importlib.metadata import version as package_version
 from io import BytesIO
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -34,7 +40,15 @@ from rosbags.interfaces import (
 )
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.rosbag2.metadata import dump_qos_v9
-from rosbags.rosbag2.storage_mcap import Channel, McapWriter, write_channel, write_string
+from rosbags.rosbag2.enums import CompressionMode
+from rosbags.rosbag2.storage_mcap import (
+    Channel,
+    McapWriter,
+    PendingChunk,
+    write_channel,
+    write_record,
+    write_string,
+)
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -49,6 +63,8 @@ METADATA_FILE = 'metadata.yaml'
 INFINITE_NS = 2**63 - 1
 #: Starting time rosbag2 and rosbags give a bag without messages.
 NO_MESSAGES_START_NS = 2**63 - 1
+#: The magic bytes an MCAP file starts and ends with.
+MAGIC = b'\x89MCAP0\r\n'
 
 
 class BagError(ValueError):
@@ -125,22 +141,67 @@ class TopicRecord:
     count: int = 0
 
 
-def bag_metadata(file_name: str, topics: Iterable[TopicRecord], start_ns: int,
-                 end_ns: int) -> dict:
-    """The ``metadata.yaml`` content of a one-file MCAP bag, field for field as Jazzy.
+@dataclass(frozen=True)
+class FileSpan:
+    """One MCAP file of a bag: its name (relative to the bag directory), the earliest and
+    latest receive time [ns] of its messages and their count."""
+
+    name: str
+    start_ns: int
+    end_ns: int
+    count: int
+
+    def as_metadata(self) -> dict:
+        start = self.start_ns if self.count else NO_MESSAGES_START_NS
+        duration = max(0, self.end_ns - self.start_ns) if self.count else 0
+        return {'path': self.name, 'starting_time': {'nanoseconds_since_epoch': start},
+                'duration': {'nanoseconds': duration}, 'message_count': self.count}
+
+
+@dataclass(frozen=True)
+class BagContents:
+    """What the files of a bag written so far hold: the files in order and the topics
+    with their message counts over all of them."""
+
+    files: tuple[FileSpan, ...]
+    topics: tuple[TopicRecord, ...]
+
+
+def merge_topics(parts: Iterable[Iterable[TopicRecord]]) -> list[TopicRecord]:
+    """Topics of several files of one bag, in order of first appearance, with their
+    counts summed (QoS and hash of the first file that has the topic); BagError if a
+    topic changes its type between files."""
+    merged: dict[str, TopicRecord] = {}
+    for records in parts:
+        for record in records:
+            known = merged.get(record.name)
+            if known is None:
+                merged[record.name] = TopicRecord(record.name, record.msgtype,
+                                                  list(record.offered_qos), record.type_hash,
+                                                  record.count)
+            elif known.msgtype != record.msgtype:
+                raise BagError(f'topic {record.name} is {known.msgtype} in one file of the '
+                               f'bag and {record.msgtype} in another')
+            else:
+                known.count += record.count
+    return list(merged.values())
+
+
+def bag_metadata(files: Sequence[FileSpan], topics: Iterable[TopicRecord]) -> dict:
+    """The ``metadata.yaml`` content of an MCAP bag, field for field as Jazzy.
 
     Parameters
     ----------
-    file_name
-        The MCAP file, relative to the bag directory.
+    files
+        The bag's MCAP files in order.
     topics
-        Topics with their message counts.
-    start_ns, end_ns
-        Earliest and latest receive time [ns]; a bag without messages gives
-        ``start_ns > end_ns``.
+        Topics with their message counts over all files.
     """
     topics = list(topics)
     count = sum(t.count for t in topics)
+    spans = [f for f in files if f.count]
+    start_ns = min((f.start_ns for f in spans), default=0)
+    end_ns = max((f.end_ns for f in spans), default=0)
     start = start_ns if count else NO_MESSAGES_START_NS
     duration = max(0, end_ns - start_ns) if count else 0
     return {'rosbag2_bagfile_information': {
@@ -158,9 +219,8 @@ def bag_metadata(file_name: str, topics: Iterable[TopicRecord], start_ns: int,
             for t in topics],
         'compression_format': '',
         'compression_mode': '',
-        'relative_file_paths': [file_name],
-        'files': [{'path': file_name, 'starting_time': {'nanoseconds_since_epoch': start},
-                   'duration': {'nanoseconds': duration}, 'message_count': count}],
+        'relative_file_paths': [f.name for f in files],
+        'files': [f.as_metadata() for f in files],
         'custom_data': None,
         'ros_distro': ROS_DISTRO,
     }}
@@ -187,6 +247,27 @@ class _JazzyMcapWriter(McapWriter):
 
     serialized_metadata: str | None = None
 
+    def __init__(self, path: Path, compression: CompressionMode, file_stem: str = '') -> None:
+        """The file ``path/<file_stem>.mcap``; rosbags names it after the directory."""
+        if not file_stem or file_stem == path.name:
+            super().__init__(path, compression)
+            return
+        # rosbags' McapWriter.__init__ (rosbags 0.11) with the file named file_stem
+        if compression != CompressionMode.NONE:
+            raise WriterError('compression is not supported when adding a file to a bag')
+        self.path = path / f'{file_stem}.mcap'
+        self.bio = self.path.open('xb')
+        self.bio.write(MAGIC)
+        header = BytesIO()
+        write_string(header, 'ros2')
+        write_string(header, f'rosbags-{package_version("rosbags")}')
+        write_record(self.bio, 0x01, header)
+        self.schemas, self.channels, self.chunks = [], [], []
+        self.chunk = PendingChunk(2**63 - 1, 0, BytesIO(), defaultdict(list))
+        self.compression, self.compressor = '', lambda data: data
+        self.message_start_time, self.message_end_time = 2**63 - 1, 0
+        self.channel_stats = {}
+
     def add_connection(self, connection, offered_qos_profiles: str) -> None:
         metadata = BytesIO()
         for key, value in (('offered_qos_profiles', offered_qos_profiles),
@@ -204,16 +285,49 @@ class _JazzyMcapWriter(McapWriter):
 
 
 class _Writer(Writer):
+    """rosbags' bag writer with Jazzy's MCAP storage, creating the bag directory or, with
+    ``file_stem`` given, adding a file named so to an existing one."""
+
     STORAGE_PLUGINS = {StoragePlugin.MCAP: _JazzyMcapWriter}
+
+    def __init__(self, path: Path, file_stem: str = '') -> None:
+        self.file_stem = file_stem
+        path = Path(path)
+        if file_stem:  # rosbags writes only into a new directory: check it ourselves
+            if not path.is_dir():
+                raise WriterError(f'{path} is not a bag directory to add a file to')
+            if (path / f'{file_stem}.mcap').exists():
+                raise WriterError(f'{path / file_stem}.mcap exists already, not overwriting.')
+            super().__init__(path / f'.{file_stem}', version=METADATA_VERSION,
+                             storage_plugin=StoragePlugin.MCAP)
+            self.path, self.metapath = path, path / '.rosbags-metadata.yaml'
+        else:
+            super().__init__(path, version=METADATA_VERSION, storage_plugin=StoragePlugin.MCAP)
+
+    def open(self) -> None:
+        if not self.file_stem:
+            super().open()
+            return
+        self.storage = _JazzyMcapWriter(self.path, self.compression_mode, self.file_stem)
+
+    def close(self) -> None:
+        super().close()
+        if self.file_stem:  # rosbags' own one-file metadata; BagWriter writes the real one
+            self.metapath.unlink(missing_ok=True)
 
 
 class BagWriter:
-    """Write serialized messages into a new rosbag2 bag (usable as a context manager).
+    """Write serialized messages into a new rosbag2 bag, or into a new file of an existing
+    one (usable as a context manager).
 
     Parameters
     ----------
     path
-        Bag directory to create; it must not exist.
+        Bag directory to create; it must not exist unless ``continues`` is given.
+    continues
+        What the bag at ``path`` holds already (see
+        :func:`dlmpc_ros.recording.repair.resume`): the messages go to a new file
+        ``<name>_<k>.mcap`` after its ``k`` files, and ``metadata.yaml`` lists them all.
     chunk_messages
         Close and flush the open MCAP chunk after this many messages.
     flush_period
@@ -222,8 +336,8 @@ class BagWriter:
         Monotonic time source in seconds.
     """
 
-    def __init__(self, path: str | os.PathLike, *, chunk_messages: int = 4096,
-                 flush_period: float = 0.5,
+    def __init__(self, path: str | os.PathLike, *, continues: BagContents | None = None,
+                 chunk_messages: int = 4096, flush_period: float = 0.5,
                  clock: Callable[[], float] = time.monotonic) -> None:
         if chunk_messages < 1:
             raise BagError(f'chunk_messages must be >= 1, got {chunk_messages}')
@@ -233,9 +347,10 @@ class BagWriter:
         self.chunk_messages = int(chunk_messages)
         self.flush_period = float(flush_period)
         self._clock = clock
+        self.continues = continues or BagContents((), ())
+        stem = f'{self.path.name}_{len(continues.files)}' if continues is not None else ''
         try:
-            writer = _Writer(self.path, version=METADATA_VERSION,
-                             storage_plugin=StoragePlugin.MCAP)
+            writer = _Writer(self.path, stem)
             writer.open()
         except (WriterError, OSError) as err:
             raise BagError(str(err)) from None
@@ -277,7 +392,8 @@ class BagWriter:
         topic, msgtype
             Topic name and message type (``pkg/msg/Type``).
         offered_qos
-            QoS profiles of the topic's publishers (see :func:`make_qos`).
+            QoS profiles of the topic's publishers (see :func:`make_qos`); a topic that the
+            earlier files of a continued bag hold keeps the profiles recorded there.
         msgdef, type_hash
             ``ros2msg`` definition (dependencies appended) and ``RIHS01_`` hash of a type
             that is not one of Jazzy's; both come from the Jazzy typestore otherwise, and
@@ -288,6 +404,14 @@ class BagWriter:
         if topic in self._connections:
             raise BagError(f'topic {topic} was added already')
         msgdef, type_hash = type_description(msgtype, msgdef, type_hash)
+        earlier = next((r for r in self.continues.topics if r.name == topic), None)
+        if earlier is not None:
+            # one topic, one description in every file (readers match files to the
+            # metadata by type, hash and QoS): the one the bag's earlier files hold
+            if earlier.msgtype != msgtype:
+                raise BagError(f'topic {topic} is {earlier.msgtype} in the earlier files of '
+                               f'{self.path}, not {msgtype}')
+            offered_qos, type_hash = earlier.offered_qos, earlier.type_hash or type_hash
         self._connections[topic] = self._writer.add_connection(
             topic, msgtype, msgdef=msgdef, rihs01=type_hash,
             serialization_format=SERIALIZATION_FORMAT, offered_qos_profiles=list(offered_qos))
@@ -331,15 +455,19 @@ class BagWriter:
     def metadata(self, file_name: str | None = None) -> dict:
         """The bag's ``metadata.yaml`` content so far (see :func:`bag_metadata`).
 
-        ``file_name`` replaces the MCAP file's name, for a file that is moved.
+        ``file_name`` replaces the MCAP file's name, for a file that is moved. The files
+        and topics of ``continues`` come first.
         """
         if self._writer is not None:
             counts = self.counts
             for name, record in self._records.items():
                 record.count = counts[name]
             self._span = (self._writer.min_timestamp, self._writer.max_timestamp)
-        return bag_metadata(file_name or self.mcap_path.name, self._records.values(),
-                            *self._span)
+        own = self._records.values()
+        span = FileSpan(file_name or self.mcap_path.name, *self._span,
+                        sum(r.count for r in own))
+        return bag_metadata((*self.continues.files, span),
+                            merge_topics([self.continues.topics, own]))
 
     def __enter__(self) -> BagWriter:
         return self

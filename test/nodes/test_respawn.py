@@ -244,3 +244,43 @@ def test_a_silent_estimator_makes_the_controller_hold_and_say_so(ros_env, tmp_pa
         probe.close()
     assert code == 0, node.output()
     assert 'no estimate for round trip' in node.output()
+
+
+def test_a_killed_recorder_is_restarted_and_continues_its_bag(ros_env, tmp_path):
+    """A recorder killed under --respawn once refused to restart ("output exists already")
+    and the bringup stopped everything with rc 1."""
+    from dlmpc_ros.recording import check_round_trips, read_bag, read_metadata
+    from test.recording.bagutil import flushed_counts
+
+    log_dir, bag = tmp_path / 'logs', tmp_path / 'bag'
+    stdout = open(tmp_path / 'bringup.out', 'w')
+    bringup = subprocess.Popen(
+        [sys.executable, '-u', '-m', 'dlmpc_ros.bringup', '--controller', 'none', '--respawn',
+         '--rate', '200', '--round-trips', '3000', '--record', str(bag),
+         '--domain-id', ros_env['ROS_DOMAIN_ID'], '--log-dir', str(log_dir)],
+        env=ros_env, stdout=stdout, stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + 120
+        while flushed_counts(bag)[itf.TOPIC_STATE] < 300:
+            assert bringup.poll() is None and time.monotonic() < deadline, \
+                (tmp_path / 'bringup.out').read_text()
+            time.sleep(0.2)
+        os.kill(_read_pid(log_dir, 'recorder'), signal.SIGKILL)
+        bringup.wait(120)
+    finally:
+        if bringup.poll() is None:
+            bringup.kill()
+        stdout.close()
+    text = (tmp_path / 'bringup.out').read_text()
+    assert bringup.returncode == 0, text
+    assert 'node recorder exited with signal SIGKILL; restarted it as pid' in text
+    meta = read_metadata(bag)
+    assert meta['relative_file_paths'] == ['bag.mcap', 'bag_1.mcap']
+    topics = read_bag(bag)
+    check = check_round_trips(topics[itf.TOPIC_STATE].column('round_trip'))
+    # one bag from round trip 1 to the end, missing only what passed during the restart
+    assert check.first == 1 and check.last >= 3000
+    assert len(check.gaps) == 1 and check.last - check.gaps[0][1] >= 500, check
+    assert not check.duplicates and not check.out_of_order
+    # the new recorder subscribes /laser/state last (after the publishers are matched)
+    assert len(topics[itf.TOPIC_SIM_TRUTH]) >= check.count

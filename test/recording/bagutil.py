@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from dlmpc_ros import interfaces as itf
-from dlmpc_ros.recording.repair import McapScan, find_mcap
+from dlmpc_ros.recording.repair import McapScan, find_mcaps
 from dlmpc_ros.recording.writer import FLOAT64_MULTI_ARRAY, jazzy_typestore
 
 
@@ -31,8 +31,8 @@ def state(round_trip: int) -> list[float]:
 def flushed_counts(bag: Path) -> Counter:
     """Messages per topic that a (possibly still open) bag has written to disk."""
     try:
-        scan = McapScan(find_mcap(bag))
-        return Counter(channel.topic for channel, _, _ in scan)
+        return Counter(channel.topic for mcap in find_mcaps(bag)
+                       for channel, _, _ in McapScan(mcap))
     except (OSError, ValueError):
         return Counter()
 

@@ -29,6 +29,7 @@ from dlmpc_ros.recording import (
     repair,
 )
 from dlmpc_ros.recording.reader import decode_float64_arrays
+from dlmpc_ros.recording.repair import resume
 from dlmpc_ros.recording.writer import jazzy_typestore
 from test.recording.bagutil import flushed_counts, serialize, state, write_run
 
@@ -208,7 +209,8 @@ def test_repair_recovers_the_flushed_prefix_of_a_killed_writer(tmp_path):
     with pytest.raises(BagError, match='dlmpc-bag repair'):
         read_bag(bag)
     report = repair(bag)
-    assert report.rewritten and not report.finished and report.chunks == 4
+    [file] = report.files
+    assert file.rewritten and not file.finished and file.chunks == 4
     assert report.counts == {itf.TOPIC_SIM_TRUTH: 400, itf.TOPIC_STATE: 400,
                              itf.TOPIC_OBJECTIVE: 400}
     topics = read_bag(bag)
@@ -216,7 +218,67 @@ def test_repair_recovers_the_flushed_prefix_of_a_killed_writer(tmp_path):
     assert read_metadata(bag)['message_count'] == 1200
     assert sorted(p.name for p in bag.iterdir()) == ['killed.mcap', 'metadata.yaml']
     again = repair(bag)  # now a finished bag: nothing to rewrite
-    assert again.finished and not again.rewritten and again.counts == report.counts
+    assert again.files[0].finished and not again.rewritten and again.counts == report.counts
+
+
+def test_a_resumed_bag_continues_in_new_files_and_reads_as_one(tmp_path):
+    """A recorder restarted after a kill once refused its bag ("exists already"): now the
+    bag is repaired and continued in a new file, as rosbag2 splits a bag."""
+    bag = tmp_path / 'killed'
+    proc = subprocess.run([sys.executable, '-c', KILLED_WRITER, str(bag)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    writer, report = resume(bag, chunk_messages=300)
+    assert [f.rewritten for f in report.files] == [True] and report.message_count == 1200
+    with writer:
+        for topic in (itf.TOPIC_SIM_TRUTH, itf.TOPIC_STATE, itf.TOPIC_OBJECTIVE):
+            writer.add_topic(topic)
+        writer.add_topic('/laser/new')  # a topic that only the second file has
+        write_run(writer, range(451, 601))
+        writer.write('/laser/new', serialize(('x',), [1.0]), 1_800_000_000_000_000_000)
+    assert writer.mcap_path.name == 'killed_1.mcap'
+    writer, report = resume(bag)  # a second restart, after a clean stop this time
+    assert not report.rewritten and len(report.files) == 2
+    with writer:
+        writer.add_topic(itf.TOPIC_STATE)
+        for r in range(601, 611):
+            writer.write(itf.TOPIC_STATE, serialize(itf.STATE_FIELDS, state(r)),
+                         1_900_000_000_000_000_000 + r)
+    meta = read_metadata(bag)
+    assert meta['relative_file_paths'] == ['killed.mcap', 'killed_1.mcap', 'killed_2.mcap']
+    assert [f['message_count'] for f in meta['files']] == [1200, 451, 10]
+    assert meta['message_count'] == 1661
+    counts = {t['topic_metadata']['name']: t['message_count']
+              for t in meta['topics_with_message_count']}
+    assert counts == {itf.TOPIC_SIM_TRUTH: 550, itf.TOPIC_STATE: 560,
+                      itf.TOPIC_OBJECTIVE: 550, '/laser/new': 1}
+    # the project's reader and rosbags' own both read the files as one bag, in order
+    states = read_bag(bag)[itf.TOPIC_STATE].column('round_trip').tolist()
+    assert states == list(range(1, 401)) + list(range(451, 611))
+    check = check_round_trips(np.array(states))
+    assert check.gaps == ((401, 450),)
+    with Reader(bag) as reader:
+        assert reader.message_count == 1661
+        assert sum(1 for c, _, _ in reader.messages() if c.topic == itf.TOPIC_STATE) == 560
+    # the repair of a bag of several files leaves it as it is
+    assert repair(bag).counts == counts and read_metadata(bag) == meta
+
+
+def test_a_bag_with_a_killed_continuation_is_repaired_file_by_file(tmp_path):
+    bag = _bag(tmp_path / 'run', range(1, 101))
+    script = KILLED_WRITER.replace(
+        'writer = BagWriter(sys.argv[1], chunk_messages=300)',
+        'from dlmpc_ros.recording.repair import resume\n'
+        'writer, _ = resume(sys.argv[1], chunk_messages=300)').replace(
+        'range(1, 451)', 'range(101, 551)')
+    proc = subprocess.run([sys.executable, '-c', script, str(bag)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    report = repair(bag)
+    assert [(f.mcap.name, f.rewritten) for f in report.files] == [('run.mcap', False),
+                                                                  ('run_1.mcap', True)]
+    states = read_bag(bag)[itf.TOPIC_STATE].column('round_trip').tolist()
+    assert states == list(range(1, 501))
 
 
 def test_repair_drops_a_chunk_cut_in_the_middle_and_rebuilds_lost_metadata(tmp_path):
@@ -226,7 +288,7 @@ def test_repair_drops_a_chunk_cut_in_the_middle_and_rebuilds_lost_metadata(tmp_p
     shutil.copytree(original, cut)
     (cut / 'metadata.yaml').unlink()
     report = repair(cut)  # a finished MCAP: only metadata.yaml is rebuilt
-    assert report.finished and not report.rewritten
+    assert report.files[0].finished and not report.rewritten
     rebuilt = read_metadata(cut)
     assert rebuilt == {**expected, 'relative_file_paths': ['run.mcap'],
                        'files': [{**expected['files'][0], 'path': 'run.mcap'}]}
@@ -234,7 +296,8 @@ def test_repair_drops_a_chunk_cut_in_the_middle_and_rebuilds_lost_metadata(tmp_p
     os.truncate(mcap, mcap.stat().st_size * 2 // 3)  # inside the fifth of six chunks
     (cut / 'metadata.yaml').unlink()
     report = repair(cut)
-    assert report.rewritten and report.chunks == 4 and report.dropped_bytes > 0
+    [file] = report.files
+    assert file.rewritten and file.chunks == 4 and file.dropped_bytes > 0
     states = read_bag(cut)[itf.TOPIC_STATE]
     assert states.column('round_trip').tolist() == list(range(1, 1334))
 
