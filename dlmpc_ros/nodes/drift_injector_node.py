@@ -60,6 +60,7 @@ class DriftInjectorNode(Node):
             raise params.StartupError(f'publish_every must be >= 1, got {self.publish_every}')
         self._warn = itf.RateLimitedLog(self.get_logger().warning)
         self._furthest = 0
+        self.published = 0
         self._pub = self.create_publisher(Float64MultiArray, itf.TOPIC_BIREFRINGENCE,
                                           QOS[itf.TOPIC_BIREFRINGENCE])
         self.create_subscription(Float64MultiArray, itf.TOPIC_STATE, self._on_state,
@@ -78,6 +79,12 @@ class DriftInjectorNode(Node):
         if round_trip % self.publish_every == 0:
             k = float(self.scenario(round_trip + 1))
             self._pub.publish(vector_message(itf.BIREFRINGENCE_FIELDS, [k]))
+            self.published += 1
+
+    def stop(self) -> None:
+        """Log what was published (the other side's count is in laser_sim's log)."""
+        self.get_logger().info(f'published {self.published} K messages, last for round '
+                               f'trip {self._furthest + 1}')
 
 
 def main(args: list[str] | None = None) -> None:

@@ -22,7 +22,6 @@ import time
 from dataclasses import fields
 
 import numpy as np
-from rclpy.duration import Duration
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
@@ -271,17 +270,29 @@ class LaserSimNode(Node):
                 next_time = max(next_time + 1.0 / rate, time.monotonic() - 1.0)
                 self._stop.wait(max(0.0, next_time - time.monotonic()))
 
-    def stop(self) -> None:
-        """Stop the worker thread and wait for it, then give the reliable readers up to a
-        second to acknowledge the last round trips (call before destroying the node), so
-        that a recorder does not miss the last state while holding its truth."""
+    def drain(self, executor) -> None:
+        """Take the commands and K still queued once the round trips have ended, so
+        that the counters logged at stop hold everything that arrived."""
         self._stop.set()
         with self._lock:
             self._lock.notify_all()
         self._worker.join()
-        if self.context.ok():
-            for publisher in (self._truth_pub, self._state_pub):
-                publisher.wait_for_all_acked(Duration(seconds=1.0))
+
+        def handled() -> int:
+            with self._lock:
+                return sum(self.counts.values())
+        params.drain_until_quiet(executor, handled, longest=5.0)
+
+    def stop(self) -> None:
+        """Stop the worker thread and wait for it (run_node then lets the readers
+        acknowledge the last round trips) and log the counters."""
+        self._stop.set()
+        with self._lock:
+            self._lock.notify_all()
+        self._worker.join()
+        with self._lock:
+            counts = ', '.join(f'{k} {v}' for k, v in self.counts.items())
+        self.get_logger().info(f'stopped after round trip {self.cavity.round_trip}: {counts}')
 
 
 def main(args: list[str] | None = None) -> None:

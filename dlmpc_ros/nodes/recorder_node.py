@@ -46,6 +46,8 @@ DESCRIPTIONS = {
     'wait_timeout': 'longest wait for those publishers before subscribing anyway [s]',
 }
 READ_ONLY = frozenset(DEFAULTS)
+#: Longest time a stopping recorder spends writing its backlog [s].
+DRAIN_SECONDS = 10.0
 #: Periods and waits the node can run (a timer of 1e300 s overflows).
 RANGES = {'discovery_period': (0.01, 3600.0), 'flush_period': (0.01, 3600.0),
           'wait_timeout': (0.0, 3600.0)}
@@ -192,6 +194,13 @@ class RecorderNode(Node):
             self.get_logger().fatal(f'cannot write {self.writer.path}: {err}')
             self.finished = True
             self.exit_code = 1
+
+    def drain(self, executor) -> None:
+        """Write what the subscriptions still hold (the bringup stops the recorder last, so
+        its backlog is all that is left of the run)."""
+        if not self.writer.closed:
+            params.drain_until_quiet(executor, lambda: sum(self.writer.counts.values()),
+                                     longest=DRAIN_SECONDS)
 
     def stop(self) -> None:
         """Close the bag (summary, footer, metadata.yaml) and log what was written."""

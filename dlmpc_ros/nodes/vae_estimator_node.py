@@ -39,6 +39,7 @@ class VAEEstimatorNode(Node):
         except (ModelFileError, FileNotFoundError) as err:
             raise params.StartupError(str(err)) from None
         self._warn = itf.RateLimitedLog(self.get_logger().warning)
+        self.published = 0
         self._pub = self.create_publisher(Float64MultiArray, itf.TOPIC_ESTIMATE,
                                           QOS[itf.TOPIC_ESTIMATE])
         self.create_subscription(Float64MultiArray, itf.TOPIC_STATE, self._on_state,
@@ -62,6 +63,11 @@ class VAEEstimatorNode(Node):
         latency_ms = 1e3 * (time.perf_counter() - started)
         self._pub.publish(vector_message(self._fields,
                                          [round_trip, surrogate, latency_ms, *latent]))
+        self.published += 1
+
+    def stop(self) -> None:
+        """Log what was published."""
+        self.get_logger().info(f'published {self.published} estimates')
 
 
 def main(args: list[str] | None = None) -> None:

@@ -173,3 +173,8 @@ class ControllerNodeBase(Node):
             [*status, *np.nan_to_num(step.predicted_objective, nan=0.0, posinf=0.0,
                                      neginf=0.0)]))
         self.steps += 1
+
+    def stop(self) -> None:
+        """Log what was published (laser_sim's log holds the commands it received)."""
+        self.get_logger().info(f'published {self.steps} commands and {self.steps} status '
+                               f'messages, last for round trip {self._last_acted}')

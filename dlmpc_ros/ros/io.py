@@ -1,20 +1,24 @@
 """QoS profiles and Float64MultiArray conversion used by every node.
 
-QoS of each topic (all volatile, so a late joiner gets only new messages):
+What each topic promises (all reliable and volatile: a late joiner gets only new
+messages). A reliable writer with a keep-last history drops a sample that a slow reader
+has not acknowledged once ``depth`` newer ones follow, and Fast DDS repairs a lost sample
+only at its next heartbeat (3 s by default): the depth is what a reader may fall behind,
+or a repair may take, without losing a message.
 
-============================  ==========  ===========  ======================================
-topic                          reliability  history      why
-============================  ==========  ===========  ======================================
-/laser/state                   reliable    keep last 1000  a subscriber that keeps up never
-                                                        misses a round trip, even in bursts
-/laser/objective               reliable    keep last 1000  same, for ``ros2 topic echo``
-/laser/angles_cmd              reliable    keep last 10    commands are never silently lost
-/laser/birefringence           reliable    keep last 10    same
-/laser/sim_truth               reliable    keep last 1000  like /laser/state (simulator only)
-/laser/status                  reliable    keep last 10    once a second
-/estimator/birefringence       reliable    keep last 1000  one per control period, none missed
-/controller/status             reliable    keep last 1000  same
-============================  ==========  ===========  ======================================
+============================  ==================  ==============================================
+topic                         history             promise
+============================  ==================  ==============================================
+/laser/state                  keep last 10000     every round trip reaches every reader that is
+/laser/objective                                  less than 10000 messages (about 8 s at full
+/laser/sim_truth                                  speed) behind
+/laser/angles_cmd             keep last 10000     every command reaches the laser (applied in
+                                                  order; the newest at each round trip wins)
+/laser/birefringence          keep last 10000     every K reaches the simulator (likewise)
+/estimator/birefringence      keep last 10000     one per control period, none missed
+/controller/status            keep last 10000     same
+/laser/status                 keep last 10        once a second; only the newest matters
+============================  ==================  ==============================================
 """
 
 from __future__ import annotations
@@ -26,19 +30,21 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension, MultiArrayLayou
 
 from dlmpc_ros import interfaces
 
+#: History depth of every topic that promises every message (see the table above).
+STREAM_DEPTH = 10_000
 STREAM_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
-                        depth=1000, durability=DurabilityPolicy.VOLATILE)
-COMMAND_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
-                         history=HistoryPolicy.KEEP_LAST, depth=10,
-                         durability=DurabilityPolicy.VOLATILE)
+                        depth=STREAM_DEPTH, durability=DurabilityPolicy.VOLATILE)
+STATUS_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
+                        history=HistoryPolicy.KEEP_LAST, depth=10,
+                        durability=DurabilityPolicy.VOLATILE)
 
 QOS = {
     interfaces.TOPIC_STATE: STREAM_QOS,
     interfaces.TOPIC_OBJECTIVE: STREAM_QOS,
-    interfaces.TOPIC_ANGLES_CMD: COMMAND_QOS,
-    interfaces.TOPIC_BIREFRINGENCE: COMMAND_QOS,
+    interfaces.TOPIC_ANGLES_CMD: STREAM_QOS,
+    interfaces.TOPIC_BIREFRINGENCE: STREAM_QOS,
     interfaces.TOPIC_SIM_TRUTH: STREAM_QOS,
-    interfaces.TOPIC_LASER_STATUS: COMMAND_QOS,
+    interfaces.TOPIC_LASER_STATUS: STATUS_QOS,
     interfaces.TOPIC_ESTIMATE: STREAM_QOS,
     interfaces.TOPIC_CONTROLLER_STATUS: STREAM_QOS,
 }

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import signal
 import threading
+import time
 from collections.abc import Callable, Mapping
 
 import rclpy
+from rclpy.duration import Duration
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
@@ -77,9 +79,42 @@ def stop_on_signals() -> threading.Event:
     return requested
 
 
+#: Longest wait of a stopping node for its readers' acknowledgements, all its publishers
+#: together [s] (a reader that keeps up acknowledges at once; a dead one never does).
+ACK_WAIT = 3.0
+
+
+def drain_until_quiet(executor, progress: Callable[[], int], quiet: float = 0.3,
+                      longest: float = 10.0) -> None:
+    """Spin ``executor`` until ``progress()`` (a count of messages handled) has not moved
+    for ``quiet`` s, or ``longest`` s passed: a stopping node takes its backlog."""
+    deadline = time.monotonic() + longest
+    seen, since = progress(), time.monotonic()
+    while time.monotonic() < deadline and time.monotonic() - since < quiet:
+        executor.spin_once(timeout_sec=0.05)
+        now = progress()
+        if now != seen:
+            seen, since = now, time.monotonic()
+
+
+def wait_for_acknowledgements(node: Node, budget: float = ACK_WAIT) -> None:
+    """Let every publisher of ``node`` wait for its readers to acknowledge what it sent,
+    ``budget`` s for all of them together."""
+    deadline = time.monotonic() + budget
+    for publisher in node.publishers:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return
+        publisher.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
+
+
 def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
              executor_factory: Callable[[], object] | None = None) -> int:
     """Init rclpy, build the node, spin until SIGINT/SIGTERM, shutdown or ``node.finished``.
+
+    At the end a node's ``drain(executor)`` (if it has one) takes what its subscriptions
+    still hold, then its ``stop()`` runs, then its publishers wait (``ACK_WAIT`` s at most)
+    for their readers to acknowledge what they sent.
 
     Returns the exit code: the node's ``exit_code`` attribute (0 if it has none), or 2 with
     one log line (no traceback) when the constructor raises :class:`StartupError`, a
@@ -113,9 +148,14 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
         pass
     finally:
         if node is not None:
+            drain = getattr(node, 'drain', None)
+            if drain is not None and executor is not None and rclpy.ok():
+                drain(executor)
             stop = getattr(node, 'stop', None)
             if stop is not None:
                 stop()
+            if rclpy.ok():  # the last messages reach the readers before the node goes
+                wait_for_acknowledgements(node)
         if executor is not None:
             executor.shutdown()
         if node is not None:
