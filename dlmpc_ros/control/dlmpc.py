@@ -44,11 +44,16 @@ from dlmpc_ros.control.acquisition import AcquisitionConfig, LockSupervisor
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.modes import (AcquireMode, Decision, HoldMode, InnerLoop, Mode,
                                      OuterLoop, Period, PredictionMonitor, TrackMode)
-from dlmpc_ros.control.step import ControlStep
+from dlmpc_ros.control.step import ControlStep, implausible
 from dlmpc_ros.control.tracking import CurveTracker
 from dlmpc_ros.learning.features import features
 from dlmpc_ros.learning.kmap import KMap
 from dlmpc_ros.learning.mprnn import MPRNN
+
+
+#: Largest |surrogate| taken as an estimate (the VAE's latent means lie within a few
+#: units); a larger one, however finite, counts as no estimate.
+SURROGATE_LIMIT = 1e3
 
 
 class DLMPCController:
@@ -118,6 +123,12 @@ class DLMPCController:
         """Measurement (6,) and the estimator's surrogate for it -> next period's angles."""
         started = time.perf_counter()
         measurement = np.asarray(measurement, float)
+        if implausible(measurement) is not None:  # hold; the models never see it
+            current = np.nan_to_num(measurement[2:6], nan=0.0)
+            return ControlStep(angles=self.config.limits.apply(current, current), mode='hold',
+                               latency_ms=1e3 * (time.perf_counter() - started))
+        if surrogate is not None and not abs(surrogate) <= SURROGATE_LIMIT:
+            surrogate = None  # no VAE latent is that far out: treat it as no estimate
         x = features(torch.as_tensor(measurement, dtype=torch.float32), self.norm)  # (10,)
         error = self.monitor.observe(x)
         period = Period(

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.step import ControlStep
+from dlmpc_ros.control.step import ControlStep, implausible
 from dlmpc_ros.core.angles import wrap_angles
 
 #: Objective transforms understood by :class:`ESCConfig`.
@@ -182,8 +182,9 @@ class ESCController:
             raise ValueError(f'esc: measurement must be (E, M, alpha1, alpha2, alpha3, '
                              f'alpha_p), got shape {measurement.shape}')
         current = measurement[2:6]
-        j = self._objective(measurement[0], measurement[1])
-        if j is None or not np.isfinite(current).all():
+        j = None if implausible(measurement) else self._objective(measurement[0],
+                                                                   measurement[1])
+        if j is None:
             angles = self._hold(current)
         else:
             angles = self._climb(j, current)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.step import ControlStep
+from dlmpc_ros.control.step import ControlStep, implausible
 from dlmpc_ros.core import checks
 from dlmpc_ros.core.angles import wrap_angles
 
@@ -180,8 +180,11 @@ class GAController:
         started = time.perf_counter()
         measurement = np.asarray(measurement, float)
         current = measurement[2:6]
-        objective = measurement[0] / measurement[1] if measurement[1] > 0 else 0.0
-        objective = objective if math.isfinite(objective) else 0.0
+        if implausible(measurement):  # a glitch scores no individual: keep the angles
+            current = np.nan_to_num(current, nan=0.0)
+            return ControlStep(angles=self.limits.apply(current, current), mode=self.name,
+                               latency_ms=1e3 * (time.perf_counter() - started))
+        objective = measurement[0] / measurement[1]
         if self.holding:
             wanted = self._hold(objective)
         else:

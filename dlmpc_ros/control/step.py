@@ -34,6 +34,31 @@ class ControlStep:
         return MODES.index(self.mode)
 
 
+#: Bounds of a laser's measurement: E = sqrt(energy) and the spectral kurtosis M (a
+#: kurtosis is at least 1; at most about the grid's point count). A state outside them
+#: (E < 0, M < 1, 1e300: a glitch or a corrupt driver) is no laser's; a controller that
+#: learns from its inputs holds the angles on it and keeps it out of its history.
+E_RANGE = (0.0, 1e4)
+M_RANGE = (1.0, 1e5)
+#: Largest |angle| a servo may report [rad] (the angles are pi-periodic; no mount turns
+#: a thousand radians).
+ANGLE_BOUND = 1e3
+
+
+def implausible(measurement: np.ndarray) -> str | None:
+    """Why a measurement ``(E, M, alpha1..alpha_p)`` is no laser's, or None."""
+    e, m = float(measurement[0]), float(measurement[1])
+    if not np.isfinite(measurement).all():
+        return 'a value is not finite'
+    if not E_RANGE[0] <= e <= E_RANGE[1]:
+        return f'E = {e:g} is outside [{E_RANGE[0]:g}, {E_RANGE[1]:g}]'
+    if not M_RANGE[0] <= m <= M_RANGE[1]:
+        return f'M = {m:g} is outside [{M_RANGE[0]:g}, {M_RANGE[1]:g}]'
+    if np.abs(measurement[2:6]).max() > ANGLE_BOUND:
+        return f'an angle exceeds {ANGLE_BOUND:g} rad'
+    return None
+
+
 class Controller(Protocol):
     """Measurement ``(E, M, alpha1, alpha2, alpha3, alpha_p)`` in, next angles out.
 

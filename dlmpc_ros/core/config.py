@@ -67,15 +67,16 @@ class CavityConfig:
 #: The values each parameter may take: (low, high), both inclusive except where a
 #: parameter must be > 0. Within them the solver stays finite (checked from random angles
 #: at both ends); beyond the highs lie values that are physically meaningless here or
-#: overflow (a pump of 1e308 blows the field up every round trip).
+#: overflow (a pump of 1e308 blows the field up every round trip; a window of 5e-324
+#: divides by zero).
 RANGES: dict[str, tuple[float, float]] = {
     'dispersion': (-10.0, 10.0), 'cross_phase': (0.0, 1.0), 'four_wave': (0.0, 1.0),
     'pump': (0.0, 100.0), 'saturation_energy': (0.0, 1000.0), 'gain_bandwidth': (0.0, 10.0),
-    'loss': (0.0, 10.0), 'fiber_length': (0.0, 10.0), 'window': (0.0, 1000.0),
+    'loss': (0.0, 10.0), 'fiber_length': (0.0, 10.0), 'window': (1.0, 1000.0),
     'points': (16, 4096), 'steps_per_round_trip': (1, 1024), 'steady_tolerance': (0.0, 1.0),
 }
 #: Parameters that must be > their low (not >=).
-POSITIVE = frozenset({'saturation_energy', 'fiber_length', 'window', 'steady_tolerance'})
+POSITIVE = frozenset({'saturation_energy', 'fiber_length', 'steady_tolerance'})
 
 
 def config_problems(values: dict[str, Any]) -> list[str]:

@@ -41,14 +41,19 @@ Scenario = Callable[[int | np.ndarray], float | np.ndarray]
 
 
 def _check_range(name: str, low: float, high: float) -> None:
+    if not (math.isfinite(low) and math.isfinite(high)):
+        raise ValueError(f'{name}: K levels must be finite, got {low} .. {high}')
     if low < K_MIN - 1e-12 or high > K_MAX + 1e-12:
         raise ValueError(f'{name}: K would span [{low:.4g}, {high:.4g}], outside the model '
                          f'range [{K_MIN}, {K_MAX}]')
 
 
-def _check_oscillation(name: str, offset: float, amplitude: float, period: float) -> None:
-    if not period > 0:
-        raise ValueError(f'{name}: period must be > 0 round trips, got {period}')
+def _check_oscillation(name: str, offset: float, amplitude: float, period: float,
+                       phase: float) -> None:
+    if not period >= 1:  # a period shorter than a round trip samples nothing of the drift
+        raise ValueError(f'{name}: period must be >= 1 round trip, got {period}')
+    if not math.isfinite(period) or not math.isfinite(phase):
+        raise ValueError(f'{name}: period and phase must be finite, got {period}, {phase}')
     _check_range(name, offset - abs(amplitude), offset + abs(amplitude))
 
 
@@ -85,7 +90,8 @@ class Sinusoidal:
     phase: float = 0.0
 
     def __post_init__(self) -> None:
-        _check_oscillation('sinusoidal', self.offset, self.amplitude, self.period)
+        _check_oscillation('sinusoidal', self.offset, self.amplitude, self.period,
+                           self.phase)
 
     def __call__(self, round_trip):
         r = _as_round_trips(round_trip)
@@ -103,7 +109,7 @@ class Chirp:
     phase: float = 0.0
 
     def __post_init__(self) -> None:
-        _check_oscillation('chirp', self.offset, self.amplitude, self.period)
+        _check_oscillation('chirp', self.offset, self.amplitude, self.period, self.phase)
 
     def __call__(self, round_trip):
         x = 7.0 * _as_round_trips(round_trip) / self.period
@@ -296,7 +302,11 @@ def make_scenario(name: str, **params: object) -> Scenario:
         if key in values:
             values[key] = tuple(float(x) for x in values[key])  # type: ignore[union-attr]
     if 'seed' in values:
-        values['seed'] = int(values['seed'])  # type: ignore[arg-type]
+        seed = values['seed']
+        if isinstance(seed, bool) or not isinstance(seed, (int, float)) or not (
+                math.isfinite(seed) and seed == int(seed) and 0 <= seed < 2 ** 63):
+            raise ValueError(f'{name}: seed must be an integer in [0, 2^63), got {seed!r}')
+        values['seed'] = int(seed)
     return _CLASSES[name](**values)
 
 

@@ -1,3 +1,5 @@
+import math
+
 import numpy as np
 import pytest
 
@@ -52,7 +54,11 @@ def test_replay_interpolates_and_holds(tmp_path):
 
 @pytest.mark.parametrize('name, params, message', [
     ('sinusoidal', {'amplitude': 0.4}, 'outside the model range'),
-    ('sinusoidal', {'period': 0.0}, 'period must be > 0'),
+    ('sinusoidal', {'period': 0.0}, 'period must be >= 1 round trip'),
+    ('chirp', {'period': 5e-324}, 'period must be >= 1 round trip'),
+    ('sinusoidal', {'phase': math.inf}, 'period and phase must be finite'),
+    ('constant', {'offset': math.nan}, 'K levels must be finite'),
+    ('random_walk', {'seed': math.inf}, 'seed must be an integer'),
     ('steps', {'times': [5, 3], 'values': [0.1, 0.2]}, 'increasing'),
     ('steps', {'times': [5], 'values': [0.1, 0.2]}, 'equally long'),
     ('random_walk', {'correlation_time': -1.0}, 'correlation_time'),

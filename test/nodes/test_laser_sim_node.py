@@ -89,7 +89,7 @@ def test_parameters_are_validated_at_runtime(ros_env, tmp_path, probe):
             return future.result().results[0]
 
         bad = set_param('pump', ParameterType.PARAMETER_DOUBLE, double_value=-1.0)
-        assert not bad.successful and 'pump must be >= 0' in bad.reason
+        assert not bad.successful and 'pump out of range' in bad.reason  # its descriptor
         bad = set_param('cross_phase', ParameterType.PARAMETER_DOUBLE, double_value=0.5)
         assert not bad.successful and 'cross_phase + four_wave' in bad.reason
         readonly = set_param('points', ParameterType.PARAMETER_INTEGER, integer_value=512)
@@ -100,9 +100,14 @@ def test_parameters_are_validated_at_runtime(ros_env, tmp_path, probe):
         assert node.stop() == 0, node.output()
 
 
-def test_invalid_start_parameters_stop_the_node_with_one_clear_message(ros_env, tmp_path):
-    node = _start(ros_env, tmp_path, 'points:=8', 'initial:=gauss')
+@pytest.mark.parametrize('setting, message', [
+    ('points:=8', 'points = 8 is outside its range [16, 4096]'),  # its descriptor's range
+    ('initial:=gauss', 'initial must be'),  # the node's own check
+])
+def test_invalid_start_parameters_stop_the_node_with_one_clear_message(ros_env, tmp_path,
+                                                                      setting, message):
+    node = _start(ros_env, tmp_path, setting)
     assert node.proc.wait(60) == 2
     log = node.output()
-    assert 'cannot start' in log and 'points must be >= 16' in log and 'initial must be' in log
+    assert 'cannot start' in log and message in log
     assert 'Traceback' not in log

@@ -52,7 +52,7 @@ CASES = {
     'drift-out-of-range': (DRIFT, ['-p', 'scenario:=steps', '-p', 'values:=[0.9]'],
                            ['outside the model range']),
     'drift-negative-period': (DRIFT, ['-p', 'period:=-100.0'],
-                              ['sinusoidal: period must be > 0']),
+                              ['sinusoidal: period must be >= 1 round trip']),
     'drift-publish-every': (DRIFT, ['-p', 'publish_every:=0'],
                             ['publish_every = 0 is outside its range']),
     'drift-huge-sigma': (DRIFT, ['-p', 'scenario:=random_walk', '-p', 'sigma:=1e300'],
