@@ -8,7 +8,7 @@ OUT    ?= out
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export ROS_LOG_DIR ?= $(CURDIR)/$(OUT)/ros-log
 
-.PHONY: venv test demo evaluate evaluate-plants bench lint data models clean
+.PHONY: venv test demo evaluate evaluate-plants bench fuzz lint data models clean
 
 venv: $(STAMP)
 
@@ -16,6 +16,7 @@ $(STAMP): requirements.txt setup.py
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.txt
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
+	$(PY) -c "from dlmpc_ros.core.cavity import compile_kernels; compile_kernels()"
 	touch $(STAMP)
 
 test: $(STAMP)
@@ -39,7 +40,8 @@ evaluate: $(STAMP)
 
 # Controllers on lasers that are not the model (docs/results/plants): the nominal cavity
 # and plants 1-8 of the family, on two drifts, and the auto-mode-locking benchmark (100
-# cold starts per plant). Dask runs it on every core (WORKERS=1: serially).
+# cold starts per plant). Dask runs it on every core (WORKERS=1: serially); the drift
+# runs are saved as they finish, and a rerun keeps them (--resume).
 PLANTS ?= 1 2 3 4 5 6 7 8
 WORKERS ?= $(shell nproc)
 evaluate-plants: $(STAMP)
@@ -47,7 +49,7 @@ evaluate-plants: $(STAMP)
 	    $(foreach p,$(PLANTS),--plant-family $(p)) \
 	    --scenario sinusoidal --scenario random_walk $(foreach s,$(SEEDS),--seed $(s)) \
 	    $(foreach c,$(CONTROLLERS),--controller $(c)) --workers $(WORKERS) \
-	    --out $(OUT)/plants/drift
+	    --resume --out $(OUT)/plants/drift
 	$(VENV)/bin/dlmpc-evaluate --benchmark lock --starts 100 --nominal \
 	    $(foreach p,$(PLANTS),--plant-family $(p)) \
 	    $(foreach c,$(CONTROLLERS),--controller $(c)) --workers $(WORKERS) \
@@ -55,6 +57,11 @@ evaluate-plants: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) bench/bench_cavity.py --out $(OUT)/bench
+
+# Longer property-based fuzzing than make test runs (hypothesis profile 'long').
+fuzz: $(STAMP)
+	DLMPC_FUZZ_PROFILE=long $(PY) -m pytest -q test/core/test_fuzz_core.py \
+	    test/control/test_fuzz_controllers.py test/nodes/test_fuzz_properties.py
 
 # Regenerate the training data (data/, not committed) and the shipped models (models/).
 data: $(STAMP)

@@ -66,12 +66,14 @@ def _guarded(fn: Callable[[Any], Any], task: Any, index: int, torch: bool) -> An
 
 def run_tasks(fn: Callable[[Any], Any], tasks: Sequence[Any], workers: int = 1,
               scheduler: str | None = None, desc: str = 'tasks',
-              show_progress: bool = True, torch: bool = False) -> list[Any]:
+              show_progress: bool = True, torch: bool = False,
+              on_result: Callable[[int, Any], None] | None = None) -> list[Any]:
     """``[fn(task) for task in tasks]``, in order, serially or on Dask (see the module).
 
     ``fn`` must be importable by the workers (a module-level function of an installed
     package); a task that raises gives a :class:`TaskFailure` in its place. ``torch``:
-    the tasks use torch, whose threads are pinned too.
+    the tasks use torch, whose threads are pinned too. ``on_result(index, result)`` is
+    called here as each task finishes (e.g. to save it before the others are done).
     """
     if workers < 1:
         raise ValueError(f'workers must be >= 1, got {workers}')
@@ -82,7 +84,7 @@ def run_tasks(fn: Callable[[Any], Any], tasks: Sequence[Any], workers: int = 1,
         try:
             for i, task in enumerate(tasks):
                 results[i] = _guarded(fn, task, i, torch)
-                _report(bar, results[i])
+                _report(bar, results[i], i, on_result)
         finally:
             _restore(threads)
             bar.close()
@@ -105,7 +107,7 @@ def run_tasks(fn: Callable[[Any], Any], tasks: Sequence[Any], workers: int = 1,
                 except Exception as err:  # the worker itself died
                     results[i] = TaskFailure(i, repr(tasks[i])[:300],
                                              f'{type(err).__name__}: {err}')
-                _report(bar, results[i])
+                _report(bar, results[i], i, on_result)
     finally:
         bar.close()
         if cluster is not None:
@@ -113,10 +115,13 @@ def run_tasks(fn: Callable[[Any], Any], tasks: Sequence[Any], workers: int = 1,
     return results
 
 
-def _report(bar: tqdm, result: Any) -> None:
+def _report(bar: tqdm, result: Any, index: int,
+            on_result: Callable[[int, Any], None] | None) -> None:
     bar.update(1)
     if isinstance(result, TaskFailure):
         bar.write(str(result), file=sys.stderr)
+    if on_result is not None:
+        on_result(index, result)
 
 
 def _thread_counts() -> tuple[int, int | None]:

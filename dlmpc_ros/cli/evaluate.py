@@ -47,6 +47,7 @@ from dlmpc_ros.evaluation.lock_benchmark import (DRIFTS, LockSpec, LockTask, loc
                                                  plot_lock_times, run_starts)
 from dlmpc_ros.evaluation.report import (lock_table, measure, summary_line, write_plant_table,
                                          write_summary)
+from dlmpc_ros.evaluation.record import RunRecord
 from dlmpc_ros.evaluation.runs import RunSpec, RunTask, run_spec, run_task
 from dlmpc_ros.learning.checkpoint import ModelFileError
 from dlmpc_ros.learning.tables import load_baselines
@@ -103,6 +104,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help='run the tasks on the Dask cluster at ADDRESS instead')
     p.add_argument('--cache', type=Path,
                    help='cache of plant envelopes and draws (default: ~/.cache/dlmpc_ros)')
+    p.add_argument('--resume', action='store_true',
+                   help='fast drift runs: keep the runs already in OUT that were made with '
+                        'the same settings and models folder, run only the others (each '
+                        'run is saved as it finishes)')
     p.add_argument('--out', type=Path, required=True, help='output directory')
     args = p.parse_args(argv)
     args.models_dir = args.models_dir or default_models_dir()
@@ -259,9 +264,22 @@ def drift_benchmark(args: argparse.Namespace, plants: list[Plant], started: floa
     nested = len(plants) > 1 or plants[0].label != 'nominal'
     jobs = [(plant, spec) for plant in plants for spec in run_specs(args, plant.parameters)]
     if args.fast:
-        tasks = [RunTask(spec, str(args.models_dir)) for _, spec in jobs]
-        records = run_tasks(run_task, tasks, args.workers, args.scheduler, desc='runs',
-                            torch='dlmpc' in args.controller)
+        records = [_finished(_run_dir(args.out, plant, spec, nested), spec, args.models_dir)
+                   if args.resume else None for plant, spec in jobs]
+        todo = [i for i, record in enumerate(records) if record is None]
+        if args.resume:
+            print(f'dlmpc-evaluate: {len(jobs) - len(todo)} of {len(jobs)} runs already in '
+                  f'{args.out}', flush=True)
+
+        def save(j: int, record: RunRecord | TaskFailure) -> None:
+            if not isinstance(record, TaskFailure):
+                record.save(_run_dir(args.out, *jobs[todo[j]], nested) / 'record.npz')
+
+        tasks = [RunTask(jobs[i][1], str(args.models_dir)) for i in todo]
+        for i, record in zip(todo, run_tasks(run_task, tasks, args.workers, args.scheduler,
+                                             desc='runs', torch='dlmpc' in args.controller,
+                                             on_result=save)):
+            records[i] = record
     else:  # graph runs: one bringup at a time, each on the run's own domain
         records = []
         for i, (plant, spec) in enumerate(jobs):
@@ -309,6 +327,16 @@ def drift_benchmark(args: argparse.Namespace, plants: list[Plant], started: floa
     print(f'dlmpc-evaluate: wrote {args.out}/metrics.json, table.md and figures/ '
           f'({len(runs)} runs, {failed} failed, {time.monotonic() - started:.0f} s)')
     return 1 if failed else 0
+
+
+def _finished(run_dir: Path, spec: RunSpec, models_dir: Path) -> RunRecord | None:
+    """The run's saved record, if it was made with these settings and models."""
+    try:
+        record = RunRecord.load(run_dir / 'record.npz')
+    except (OSError, ValueError, KeyError, TypeError):  # absent, partial or foreign
+        return None
+    wanted = json.loads(json.dumps(spec.meta(models_dir)))
+    return record if all(record.meta.get(k) == v for k, v in wanted.items()) else None
 
 
 def _run_dir(out: Path, plant: Plant, spec: RunSpec, nested: bool) -> Path:

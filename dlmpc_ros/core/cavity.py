@@ -240,3 +240,10 @@ class Cavity:
     def step(self) -> RoundTripResult:
         """Advance every laser by one round trip; returns (B,) observables."""
         return self.run(1).last()
+
+
+def compile_kernels() -> None:
+    """Compile the serial and the thread-parallel kernel into numba's on-disk cache (one
+    short run of each), so that no later process pays the compile time (about 20 s)."""
+    for batch in (1, PARALLEL_MIN_BATCH):
+        Cavity(batch=batch).run(1)

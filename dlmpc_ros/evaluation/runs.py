@@ -74,9 +74,11 @@ class RunSpec:
         """The scenario settings the run uses (the random walk's seed filled in)."""
         return run_settings(self.scenario, self.seed, self.settings or None)
 
-    def meta(self) -> dict:
-        """What the run's record and metrics say about it."""
-        return {'scenario': self.scenario, 'settings': self.run_settings,
+    def meta(self, models_dir: Path | None = None) -> dict:
+        """What the run's record and metrics say about it (and the models folder the
+        controller was built from, when given)."""
+        models = {} if models_dir is None else {'models_dir': str(Path(models_dir).resolve())}
+        return {**models, 'scenario': self.scenario, 'settings': self.run_settings,
                 'controller': self.controller, 'seed': self.seed,
                 'round_trips': self.round_trips, 'period': self.period, 'mode': self.mode,
                 'initial_angles': random_initial_angles(self.seed).tolist(),
@@ -100,7 +102,7 @@ def run_fast(spec: RunSpec, models_dir: Path, controller: Controller | None = No
         estimator = load_estimator(models_dir)
     return run_closed_loop(controller, scenario, spec.round_trips, spec.period,
                            random_initial_angles(spec.seed), cavity_config=spec.cavity,
-                           estimator=estimator, meta=spec.meta(), progress=progress,
+                           estimator=estimator, meta=spec.meta(models_dir), progress=progress,
                            measurement_noise=spec.measurement_noise, noise_seed=spec.seed)
 
 
@@ -116,7 +118,7 @@ def run_spec(spec: RunSpec, models_dir: Path, run_dir: Path, domain_id: int = 88
     return run_graph(run_dir, spec.controller, spec.scenario, setting_strings(spec.run_settings),
                      spec.round_trips, spec.period, random_initial_angles(spec.seed),
                      domain_id, lockstep=spec.mode == 'graph-lockstep',
-                     models_dir=models_dir, meta=spec.meta(),
+                     models_dir=models_dir, meta=spec.meta(models_dir),
                      plant=[f'{k}={v!r}' for k, v in spec.plant.items()])
 
 
