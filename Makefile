@@ -20,7 +20,7 @@ $(STAMP): requirements.txt setup.py
 	touch $(STAMP)
 
 test: $(STAMP)
-	$(PY) -m pytest -q test
+	$(PY) -m pytest -q --durations=15 test
 
 demo: $(STAMP)
 	$(VENV)/bin/bringup --controller dlmpc --lockstep --scenario sinusoidal \

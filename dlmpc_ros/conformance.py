@@ -544,6 +544,30 @@ def _counter_increase(statuses: Sequence[Sample], first_command_at: float | None
             for j, name in enumerate(itf.LASER_STATUS_FIELDS) if j >= 2}
 
 
+def check_diagnostics(reports: Sequence[tuple[float, str, int, str]], lasers: Sequence[str],
+                      start: float, end: float) -> CheckResult:
+    """(f) /diagnostics of the laser node (optional): ``reports`` are (received
+    [monotonic s], status name, level, message) of every status heard; ``lasers`` the
+    names of the nodes publishing /laser/state. Absent: a warning; an ERROR from a laser
+    that streams: a failure; else a pass, with the levels seen."""
+    key, name = 'f', 'diagnostics'
+    names = {laser.rsplit('/', 1)[-1] for laser in lasers}
+    mine = [r for r in reports if r[1] in names and start <= r[0] <= end]
+    if not mine:
+        return CheckResult(key, name, WARN, 'no /diagnostics status from the laser', [],
+                           [f'{", ".join(sorted(names)) or "the laser"} publishes no '
+                            'diagnostic_msgs/DiagnosticArray status named after the node on '
+                            '/diagnostics (optional; see docs/interfaces.md)'])
+    levels = {lv: sum(1 for r in mine if r[2] == lv) for lv in sorted({r[2] for r in mine})}
+    seen = ', '.join(f'{n} {("OK", "WARN", "ERROR", "STALE")[min(lv, 3)]}'
+                     for lv, n in levels.items())
+    span = max(end - start, 1e-9)
+    summary = f'{len(mine)} statuses ({len(mine) / span:.1f}/s): {seen}; last: {mine[-1][3]}'
+    problems = [f'the laser reports ERROR while it streams: {r[3]}' for r in mine if r[2] >= 2]
+    return _result(key, name, summary, problems[-1:],
+                   figures={'statuses': len(mine), 'rate_hz': len(mine) / span})
+
+
 def skipped(key: str, name: str, why: str) -> CheckResult:
     """A check that was not run."""
     return CheckResult(key, name, SKIP, why)

@@ -23,6 +23,9 @@ TOPIC_LASER_STATUS = '/laser/status'
 TOPIC_ESTIMATE = '/estimator/birefringence'
 #: What the controller decided in each control period.
 TOPIC_CONTROLLER_STATUS = '/controller/status'
+#: Every node's health once a second (diagnostic_msgs/DiagnosticArray; keys in
+#: docs/interfaces.md, levels in :mod:`dlmpc_ros.health`).
+TOPIC_DIAGNOSTICS = '/diagnostics'
 
 #: Fields of /laser/state, one message per round trip (angles in radians).
 STATE_FIELDS = ('round_trip', 'E', 'M', 'O', 'energy', 'peak',
@@ -122,6 +125,9 @@ class RateLimitedLog:
         self._clock = clock
         self._last: dict[str, float] = {}
         self._suppressed: dict[str, int] = {}
+        #: Messages dropped per topic, and the last reason (for /diagnostics).
+        self.dropped_counts: dict[str, int] = {}
+        self.last_fault: dict[str, str] = {}
 
     def __call__(self, key: str, text: str) -> bool:
         """Log ``text`` unless ``key`` was logged within the period; True if it was logged."""
@@ -138,4 +144,6 @@ class RateLimitedLog:
 
     def dropped(self, topic: str, fault: str) -> bool:
         """Report a message dropped on ``topic`` for ``fault`` (rate-limited per topic)."""
+        self.dropped_counts[topic] = self.dropped_counts.get(topic, 0) + 1
+        self.last_fault[topic] = fault
         return self(topic, f'dropped a message on {topic}: {fault}')

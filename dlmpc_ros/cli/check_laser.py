@@ -29,15 +29,16 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+from diagnostic_msgs.msg import DiagnosticArray
 from std_msgs.msg import Float64MultiArray
 
 from dlmpc_ros import conformance as cf
 from dlmpc_ros import interfaces as itf
-from dlmpc_ros.ros.io import QOS, layout_for, vector_message
+from dlmpc_ros.ros.io import DIAGNOSTICS_QOS, QOS, layout_for, vector_message
 from dlmpc_ros.ros.params import stop_on_signals
 
 NAMES = {'a': 'state stream', 'b': 'objective', 'c': 'angle commands',
-         'd': 'malformed commands', 'e': 'status'}
+         'd': 'malformed commands', 'e': 'status', 'f': 'diagnostics'}
 
 
 class NoLaser(RuntimeError):
@@ -131,6 +132,15 @@ class CheckLaserNode(Node):
             self.create_subscription(Float64MultiArray, topic, self._recorder(box), QOS[topic])
         self.commands = self.create_publisher(Float64MultiArray, itf.TOPIC_ANGLES_CMD,
                                               QOS[itf.TOPIC_ANGLES_CMD])
+        self.diagnostics: list[tuple[float, str, int, str]] = []
+        self.create_subscription(DiagnosticArray, itf.TOPIC_DIAGNOSTICS, self._on_diagnostics,
+                                 DIAGNOSTICS_QOS)
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        now = time.monotonic()
+        for status in msg.status:
+            level = status.level[0] if isinstance(status.level, bytes) else int(status.level)
+            self.diagnostics.append((now, status.name, level, status.message))
 
     @staticmethod
     def _recorder(box: list[cf.Sample]) -> Callable[[Float64MultiArray, dict], None]:
@@ -294,7 +304,7 @@ def _command_checks(session: Session, rt_rate: float) -> dict[str, object]:
 
 
 def run_checks(session: Session, domain: str) -> tuple[list[cf.CheckResult], dict]:
-    """All five checks; raises NoLaser when no /laser/state arrives within --timeout."""
+    """All six checks; raises NoLaser when no /laser/state arrives within --timeout."""
     node, s, args = session.node, session.s, session.args
     began = time.monotonic()
     print(f'dlmpc-check-laser: ROS domain {domain}: waiting up to {args.timeout:g} s for '
@@ -324,7 +334,8 @@ def run_checks(session: Session, domain: str) -> tuple[list[cf.CheckResult], dic
         c = cf.skipped('c', NAMES['c'], '--no-commands')
         d = cf.skipped('d', NAMES['d'], '--no-commands')
         e = cf.check_status(node.statuses, found, time.monotonic(), s, rt_rate)
-        return [a, b, c, d, e], info
+        f = cf.check_diagnostics(node.diagnostics, lasers, found, time.monotonic())
+        return [a, b, c, d, e, f], info
     print('dlmpc-check-laser: sending test commands', flush=True)
     try:
         out = _command_checks(session, rt_rate)
@@ -347,7 +358,8 @@ def run_checks(session: Session, domain: str) -> tuple[list[cf.CheckResult], dic
                     'messages_rejected': len(out['malformed'])}
     e = cf.check_status(node.statuses, found, time.monotonic(), s, rt_rate,
                         out.get('first_command_at'), confirmed, expected)
-    return [a, b, c, d, e], info
+    f = cf.check_diagnostics(node.diagnostics, lasers, found, time.monotonic())
+    return [a, b, c, d, e, f], info
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -34,6 +34,10 @@ DEFAULTS: dict[str, object] = {'controller': 'fixed_best', 'angles': [0.0],
                                'ga_generations': _GA.generations, 'ga_dwell': _GA.dwell,
                                'ga_lock_objective': _GA.lock_objective,
                                'ga_restart_level': _GA.restart_level}
+RANGES: dict[str, tuple[float, float]] = {
+    'ga_population': (2, 10_000), 'ga_generations': (1, 100_000), 'ga_dwell': (1, 10_000),
+    'ga_lock_objective': (1e-9, 1e4), 'ga_restart_level': (0.0, 1.0),
+}
 DESCRIPTIONS = {
     'controller': f'which baseline: one of {BASELINES}',
     'angles': 'passive only: the 4 angles to hold [rad] (else tuned for '
@@ -50,7 +54,7 @@ DESCRIPTIONS = {
 
 class BaselineControllerNode(ControllerNodeBase):
     def __init__(self) -> None:
-        super().__init__('baseline_controller', DEFAULTS, DESCRIPTIONS)
+        super().__init__('baseline_controller', DEFAULTS, DESCRIPTIONS, RANGES)
         name = self.values['controller']
         if name not in BASELINES:
             raise params.StartupError(f'controller must be one of {BASELINES}, got {name!r}')

@@ -10,6 +10,7 @@ evaluation only: no controller subscribes to it.
 from __future__ import annotations
 
 import sys
+import time
 
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
@@ -18,7 +19,9 @@ from std_msgs.msg import Float64MultiArray
 
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.core.drift import PARAMETER_NAMES, SCENARIOS, make_scenario
+from dlmpc_ros.health import WARN, CounterWindow, Findings, Health
 from dlmpc_ros.ros import params
+from dlmpc_ros.ros.diagnostics import DiagnosticsPublisher
 from dlmpc_ros.ros.io import QOS, vector_message
 
 DEFAULTS: dict[str, object] = {'scenario': 'sinusoidal', 'publish_every': 1,
@@ -61,6 +64,10 @@ class DriftInjectorNode(Node):
         self._warn = itf.RateLimitedLog(self.get_logger().warning)
         self._furthest = 0
         self.published = 0
+        self._scenario_name = str(values['scenario'])
+        self._last_state: float | None = None
+        self._drops = CounterWindow()
+        self._diagnostics = DiagnosticsPublisher(self, self._health)
         self._pub = self.create_publisher(Float64MultiArray, itf.TOPIC_BIREFRINGENCE,
                                           QOS[itf.TOPIC_BIREFRINGENCE])
         self.create_subscription(Float64MultiArray, itf.TOPIC_STATE, self._on_state,
@@ -71,6 +78,7 @@ class DriftInjectorNode(Node):
         if not itf.usable_state(msg.data, self._warn):
             return
         round_trip = int(msg.data[0])
+        self._last_state = time.monotonic()
         if round_trip > self._furthest + MAX_AHEAD:
             self._warn.dropped(itf.TOPIC_STATE, f'round_trip {round_trip} runs more than '
                                f'{MAX_AHEAD} past the furthest seen ({self._furthest})')
@@ -80,6 +88,16 @@ class DriftInjectorNode(Node):
             k = float(self.scenario(round_trip + 1))
             self._pub.publish(vector_message(itf.BIREFRINGENCE_FIELDS, [k]))
             self.published += 1
+
+    def _health(self, findings: Findings, now: float) -> Health:
+        findings.values.update(scenario=self._scenario_name, k_published=self.published,
+                               furthest_round_trip=self._furthest)
+        findings.new_drops(self._drops, dict(self._warn.dropped_counts),
+                           dict(self._warn.last_fault))
+        findings.input(itf.TOPIC_STATE, self._last_state, self._diagnostics.started, now,
+                       silent_level=WARN)
+        return findings.health(f'{self.published} K published, scenario '
+                               f'{self._scenario_name}')
 
     def stop(self) -> None:
         """Log what was published (the other side's count is in laser_sim's log)."""

@@ -29,7 +29,9 @@ from dlmpc_ros import interfaces as itf
 from dlmpc_ros.core.cavity import INITIAL_CONDITIONS, Cavity
 from dlmpc_ros.core.config import RANGES as CAVITY_RANGES
 from dlmpc_ros.core.config import CavityConfig, config_problems
+from dlmpc_ros.health import CounterWindow, Findings, Health, laser_health
 from dlmpc_ros.ros import params
+from dlmpc_ros.ros.diagnostics import DiagnosticsPublisher
 from dlmpc_ros.ros.io import QOS, vector_message
 
 CAVITY_NAMES = tuple(f.name for f in fields(CavityConfig))
@@ -117,6 +119,9 @@ class LaserSimNode(Node):
                                                  QOS[itf.TOPIC_LASER_STATUS])
         self._rate_mark = (time.monotonic(), 0)
         self.create_timer(1.0, self._publish_status)
+        self._health_mark = (time.monotonic(), 0)
+        self._health_windows = (CounterWindow(), CounterWindow())
+        DiagnosticsPublisher(self, self._health, hardware_id='simulated cavity')
         for topic, handler in ((itf.TOPIC_ANGLES_CMD, self._on_angles),
                                (itf.TOPIC_BIREFRINGENCE, self._on_birefringence)):
             self.create_subscription(Float64MultiArray, topic, handler, QOS[topic])
@@ -190,6 +195,21 @@ class LaserSimNode(Node):
             counts = list(self.counts.values())
         self._status_pub.publish(vector_message(
             itf.LASER_STATUS_FIELDS, [round_trip, (round_trip - before) / (now - then), *counts]))
+
+    def _health(self, findings: Findings, now: float) -> Health:
+        then, before = self._health_mark
+        round_trip = self.cavity.round_trip
+        self._health_mark = (now, round_trip)
+        with self._lock:
+            counts = dict(self.counts)
+        rate = self.values['round_trips_per_second']
+        findings.values['pace'] = ('lockstep' if self.values['lockstep_period'] > 0
+                                   else f'{rate:g} round trips/s' if rate > 0 else 'free-run')
+        drops, windows = self._warn, self._health_windows
+        findings.new_drops(windows[0], dict(drops.dropped_counts), dict(drops.last_fault))
+        return laser_health(findings, windows[1], round_trip,
+                            (round_trip - before) / max(now - then, 1e-9), counts,
+                            running=self.exit_code == 0)
 
     def _wait_for(self, counter: str, seen: int) -> None:
         """Lockstep: wait until ``counts[counter]`` passes ``seen`` (or time out)."""

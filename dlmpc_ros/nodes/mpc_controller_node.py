@@ -73,6 +73,16 @@ DESCRIPTIONS = {
     'track_guard': 'hand back to the inner loop when O under tracking falls below this x '
                    'the O before it took over',
 }
+RANGES: dict[str, tuple[float, float]] = {
+    'min_iterations': (1, 10_000), 'max_iterations': (1, 10_000),
+    'start_iterations': (1, 10_000), 'learning_rate': (1e-9, 10.0),
+    'error_threshold': (1e-12, 1e6), 'accurate_error': (1e-12, 1e6),
+    'trust_radius': (0.0, 1e3), 'objective_guard': (0.0, 1.0),
+    'guard_cooldown': (1, 1_000_000), 'lock_fraction': (1e-6, 0.999999),
+    'acquire_patience': (1, 1_000_000), 'acquire_dwell': (1, 1_000_000),
+    'track_dither': (1e-9, 1.0), 'track_step': (_TRK.min_step, _TRK.max_step),
+    'track_guard': (1e-6, 1.0),
+}
 
 
 class MPCControllerNode(ControllerNodeBase):
@@ -81,7 +91,7 @@ class MPCControllerNode(ControllerNodeBase):
     def __init__(self) -> None:
         super().__init__('mpc_controller',
                          {**DEFAULTS, **OPTIONAL_DEFAULTS, **ACQUISITION_DEFAULTS,
-                          **TRACKING_DEFAULTS}, DESCRIPTIONS)
+                          **TRACKING_DEFAULTS}, DESCRIPTIONS, RANGES)
         v = self.values
         try:
             acquisition = AcquisitionConfig(

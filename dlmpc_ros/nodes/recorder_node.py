@@ -26,9 +26,11 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from dlmpc_ros import interfaces as itf
+from dlmpc_ros.health import Findings, Health
 from dlmpc_ros.recording.repair import resume
 from dlmpc_ros.recording.writer import FLOAT64_MULTI_ARRAY, BagError, BagWriter, make_qos
 from dlmpc_ros.ros import params
+from dlmpc_ros.ros.diagnostics import DiagnosticsPublisher
 from dlmpc_ros.ros.io import QOS, STREAM_QOS
 
 DEFAULTS: dict[str, object] = {'output': '', 'append': False,
@@ -110,8 +112,20 @@ class RecorderNode(Node):
         self._discover()
         self.create_timer(values['discovery_period'], self._discover)
         self.create_timer(values['flush_period'], self.writer.flush)
+        self._diagnostics = DiagnosticsPublisher(self, self._health)
         self.get_logger().info(f'recording topics under {", ".join(self.prefixes)} '
                                f'to {output}')
+
+    def _health(self, findings: Findings, now: float) -> Health:
+        counts = dict(self.writer.counts)
+        findings.values.update(bag=str(self.writer.path), messages_written=sum(counts.values()),
+                               **{f'{topic} messages': n for topic, n in counts.items()})
+        if self.exit_code:
+            findings.errors.append(f'cannot write {self.writer.path}')
+        if self._gate_timer is not None:
+            findings.values['waiting_for'] = ', '.join(self._awaited)
+        return findings.health(f'{sum(counts.values())} messages of {len(counts)} topics '
+                               'written')
 
     def _open_gate(self) -> None:
         """Subscribe /laser/state once every awaited topic has a matched publisher (or

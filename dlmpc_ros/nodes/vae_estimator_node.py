@@ -8,6 +8,7 @@ surrogate is a coordinate of the latent space that tracks K, not K in K's units.
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 
@@ -17,9 +18,11 @@ from std_msgs.msg import Float64MultiArray
 
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.control.factory import load_estimator
+from dlmpc_ros.health import CounterWindow, Findings, Health
 from dlmpc_ros.learning.checkpoint import ModelFileError
 from dlmpc_ros.paths import models_dir
 from dlmpc_ros.ros import params
+from dlmpc_ros.ros.diagnostics import DiagnosticsPublisher
 from dlmpc_ros.ros.io import QOS, vector_message
 
 DEFAULTS: dict[str, object] = {'period': 10, 'models_dir': ''}
@@ -30,7 +33,8 @@ DESCRIPTIONS = {'period': 'control period P [round trips]: one estimate per P ro
 class VAEEstimatorNode(Node):
     def __init__(self) -> None:
         super().__init__('vae_estimator')
-        values = params.declare(self, DEFAULTS, DESCRIPTIONS, frozenset(DEFAULTS))
+        values = params.declare(self, DEFAULTS, DESCRIPTIONS, frozenset(DEFAULTS),
+                                {'period': (1, 1_000_000)})
         self.period = values['period']
         if not (isinstance(self.period, int) and self.period >= 1):
             raise params.StartupError(f'period must be an integer >= 1, got {self.period}')
@@ -40,6 +44,10 @@ class VAEEstimatorNode(Node):
             raise params.StartupError(str(err)) from None
         self._warn = itf.RateLimitedLog(self.get_logger().warning)
         self.published = 0
+        self._last_state: float | None = None
+        self._latency_ms = math.nan
+        self._drops = CounterWindow()
+        self._diagnostics = DiagnosticsPublisher(self, self._health)
         self._pub = self.create_publisher(Float64MultiArray, itf.TOPIC_ESTIMATE,
                                           QOS[itf.TOPIC_ESTIMATE])
         self.create_subscription(Float64MultiArray, itf.TOPIC_STATE, self._on_state,
@@ -51,6 +59,7 @@ class VAEEstimatorNode(Node):
         if not itf.usable_state(msg.data, self._warn):
             return
         round_trip = int(msg.data[0])
+        self._last_state = time.monotonic()
         if round_trip % self.period:
             return
         started = time.perf_counter()
@@ -60,10 +69,18 @@ class VAEEstimatorNode(Node):
             self._warn('nonfinite', f'estimate at round trip {round_trip} is not finite; '
                        'not published')
             return
-        latency_ms = 1e3 * (time.perf_counter() - started)
+        latency_ms = self._latency_ms = 1e3 * (time.perf_counter() - started)
         self._pub.publish(vector_message(self._fields,
                                          [round_trip, surrogate, latency_ms, *latent]))
         self.published += 1
+
+    def _health(self, findings: Findings, now: float) -> Health:
+        findings.values.update(estimates_published=self.published,
+                               latency_ms=self._latency_ms)
+        findings.new_drops(self._drops, dict(self._warn.dropped_counts),
+                           dict(self._warn.last_fault))
+        findings.input(itf.TOPIC_STATE, self._last_state, self._diagnostics.started, now)
+        return findings.health(f'{self.published} estimates published')
 
     def stop(self) -> None:
         """Log what was published."""

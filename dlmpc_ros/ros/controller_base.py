@@ -13,6 +13,7 @@ one row per period. It publishes the angles on /laser/angles_cmd and the decisio
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 from rclpy.node import Node
@@ -21,7 +22,9 @@ from std_msgs.msg import Float64MultiArray
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.step import Controller, ControlStep
+from dlmpc_ros.health import ERROR, WARN, CounterWindow, Findings, Health, controller_health
 from dlmpc_ros.ros import params
+from dlmpc_ros.ros.diagnostics import DiagnosticsPublisher
 from dlmpc_ros.ros.io import QOS, vector_message
 
 COMMON_DEFAULTS: dict[str, object] = {
@@ -36,6 +39,12 @@ COMMON_DESCRIPTIONS = {
     'models_dir': 'directory of the model files (empty: the installed models/)',
     'estimator_timeout': 'seconds to wait for the estimate of a period before acting '
                          'without it',
+}
+
+#: Ranges (``ros2 param describe`` shows them; rclpy refuses values outside).
+COMMON_RANGES: dict[str, tuple[float, float]] = {
+    'period': (1, 1_000_000), 'angle_low': (-1e3, 1e3), 'angle_high': (-1e3, 1e3),
+    'max_step': (1e-9, 1e3), 'estimator_timeout': (1e-3, 3600.0),
 }
 
 
@@ -56,11 +65,13 @@ class ControllerNodeBase(Node):
 
     uses_estimator = False
 
-    def __init__(self, name: str, defaults: dict, descriptions: dict) -> None:
+    def __init__(self, name: str, defaults: dict, descriptions: dict,
+                 ranges: dict[str, tuple[float, float]] | None = None) -> None:
         super().__init__(name)
         self.values = params.declare(self, {**COMMON_DEFAULTS, **defaults},
                                      {**COMMON_DESCRIPTIONS, **descriptions},
-                                     frozenset(COMMON_DEFAULTS) | frozenset(defaults))
+                                     frozenset(COMMON_DEFAULTS) | frozenset(defaults),
+                                     {**COMMON_RANGES, **(ranges or {})})
         self.limits = limits_from(self.values)
         self.period = int(self.values['period'])
         self.controller: Controller | None = None
@@ -71,6 +82,12 @@ class ControllerNodeBase(Node):
         self._last_estimate_round_trip: int | None = None
         self._last_acted = -1
         self.steps = 0
+        self._last_state: float | None = None
+        self._last_estimate: float | None = None
+        self._last_mode: str | None = None
+        self._last_objective: float | None = None
+        self._estimate_age: float | None = None
+        self._drops = CounterWindow()
 
     def start(self) -> None:
         self._cmd_pub = self.create_publisher(Float64MultiArray, itf.TOPIC_ANGLES_CMD,
@@ -83,10 +100,25 @@ class ControllerNodeBase(Node):
             self.create_subscription(Float64MultiArray, itf.TOPIC_ESTIMATE, self._on_estimate,
                                      QOS[itf.TOPIC_ESTIMATE])
         self.create_timer(0.02, self._check_timeout)
+        self._diagnostics = DiagnosticsPublisher(self, self._health)
+
+    def _health(self, findings: Findings, now: float) -> Health:
+        findings.new_drops(self._drops, dict(self._warn.dropped_counts),
+                           dict(self._warn.last_fault))
+        started = self._diagnostics.started
+        findings.input(itf.TOPIC_STATE, self._last_state, started, now, silent_level=ERROR)
+        if self.uses_estimator:  # the controller holds without it: a warning
+            findings.input(itf.TOPIC_ESTIMATE, self._last_estimate, started, now,
+                           silent_level=WARN)
+        supervisor = getattr(self.controller, 'acquisition', None)
+        return controller_health(findings, self._last_mode, self._last_objective,
+                                 getattr(supervisor, 'threshold', None), self.steps,
+                                 self._estimate_age, self.uses_estimator)
 
     def _on_state(self, msg: Float64MultiArray) -> None:
         if not itf.usable_state(msg.data, self._warn):
             return None
+        self._last_state = time.monotonic()
         round_trip = int(msg.data[0])
         if round_trip % self.period or round_trip == self._last_acted:
             return None
@@ -111,6 +143,7 @@ class ControllerNodeBase(Node):
         if fault is not None:
             return self._warn.dropped(itf.TOPIC_ESTIMATE, fault)
         round_trip = int(data[0])
+        self._last_estimate = time.monotonic()
         self._estimates[round_trip] = float(data[1])
         self._last_estimate_round_trip = round_trip
         while len(self._estimates) > 64:
@@ -160,6 +193,8 @@ class ControllerNodeBase(Node):
         self._cmd_pub.publish(vector_message(itf.ANGLE_FIELDS, step.angles))
         age = -1.0 if self._last_estimate_round_trip is None else (
             (round_trip - self._last_estimate_round_trip) / self.period)
+        self._last_mode, self._last_objective = step.mode, float(state[3])
+        self._estimate_age = None if age < 0 else age
         valid = math.isfinite(step.surrogate)
         error = step.prediction_error if math.isfinite(step.prediction_error) else -1.0
         status = [round_trip, step.mode_index, error, step.iterations, step.latency_ms,

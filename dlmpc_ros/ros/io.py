@@ -18,6 +18,9 @@ topic                         history             promise
 /estimator/birefringence      keep last 10000     one per control period, none missed
 /controller/status            keep last 10000     same
 /laser/status                 keep last 10        once a second; only the newest matters
+/diagnostics                  keep last 10        likewise (diagnostic_msgs/DiagnosticArray,
+                                                  every node; not in :data:`QOS`, whose
+                                                  topics carry Float64MultiArray)
 ============================  ==================  ==============================================
 """
 
@@ -37,6 +40,8 @@ STREAM_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryP
 STATUS_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
                         history=HistoryPolicy.KEEP_LAST, depth=10,
                         durability=DurabilityPolicy.VOLATILE)
+#: /diagnostics, as ROS diagnostics tools expect it.
+DIAGNOSTICS_QOS = STATUS_QOS
 
 QOS = {
     interfaces.TOPIC_STATE: STREAM_QOS,

@@ -1,6 +1,7 @@
 """A kernel compiled in this process computes what the same kernel loaded from numba's
 on-disk cache computes (bit for bit): the first process on a machine must not differ
-from the others, nor serial runs from those on Dask workers."""
+from the others, nor serial runs from those on Dask workers. (The serial kernel only: the
+thread-parallel one runs the same per-laser code, and compiling it too doubles the cost.)"""
 
 import os
 import subprocess
@@ -9,11 +10,8 @@ import sys
 SCRIPT = '''
 import hashlib, numpy as np
 from dlmpc_ros.core.cavity import Cavity
-angles = np.array([[-0.39, -0.25, 0.52, -0.14], [0.30, -1.10, 0.70, 0.25],
-                   [1.24, -0.24, 0.28, -1.49], [0.1, 0.2, 0.3, 0.4]])
-for batch in (1, 4):
-    cavity = Cavity(batch=batch, angles=angles[:batch], birefringence=0.1)
-    print(hashlib.sha1(np.ascontiguousarray(cavity.run(40).E).tobytes()).hexdigest())
+cavity = Cavity(angles=np.array([-0.39, -0.25, 0.52, -0.14]), birefringence=0.1)
+print(hashlib.sha1(np.ascontiguousarray(cavity.run(40).E).tobytes()).hexdigest())
 '''
 
 
@@ -23,4 +21,4 @@ def test_a_freshly_compiled_kernel_equals_the_cached_one(tmp_path):
                            text=True, timeout=600, check=True).stdout.split()
             for _ in range(2)]
     assert any(tmp_path.rglob('*.nbi')), 'the first run wrote no cache'
-    assert len(runs[0]) == 2 and runs[0] == runs[1]
+    assert len(runs[0]) == 1 and runs[0] == runs[1]

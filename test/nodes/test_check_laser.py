@@ -91,11 +91,11 @@ def test_laser_sim_passes_every_check(ros_env, tmp_path):
         code = laser.stop()
     out = proc.stdout
     assert proc.returncode == 0, out + proc.stderr + laser.output()[-3000:]
-    for key in 'abcde':
+    for key in 'abcdef':
         assert ' PASS ' in _line(out, key), out
     assert out.rstrip().endswith('result: PASS')
     report = json.loads((tmp_path / 'report.json').read_text())
-    assert report['passed'] and [c['status'] for c in report['checks']] == ['PASS'] * 5
+    assert report['passed'] and [c['status'] for c in report['checks']] == ['PASS'] * 6
     stream = report['checks'][0]['figures']
     assert stream['rate_hz'] == pytest.approx(500, rel=0.1)
     commands = report['checks'][2]['figures']
@@ -184,3 +184,14 @@ if __name__ == '__main__':  # the fake laser: python -m test.nodes.test_check_la
     from dlmpc_ros.ros.params import run_node
 
     sys.exit(run_node(lambda: FakeLaserNode(sys.argv[1])))
+
+
+def test_the_diagnostics_check_is_optional_and_fails_only_on_an_error():
+    lasers = ['/my_driver']
+    absent = cf.check_diagnostics([(1.0, 'other_node', 0, 'fine')], lasers, 0.0, 5.0)
+    assert absent.status == cf.WARN and 'my_driver' in absent.notes[0]
+    fine = cf.check_diagnostics([(t, 'my_driver', 1 if t == 2 else 0, 'ok')
+                                 for t in (1.0, 2.0, 3.0)], lasers, 0.0, 4.0)
+    assert fine.status == cf.PASS and '2 OK, 1 WARN' in fine.summary
+    broken = cf.check_diagnostics([(1.0, 'my_driver', 2, 'laser lost')], lasers, 0.0, 2.0)
+    assert broken.status == cf.FAIL and 'laser lost' in broken.problems[0]
