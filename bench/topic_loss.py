@@ -57,6 +57,7 @@ class Witness:
                          history=HistoryPolicy.KEEP_ALL, durability=DurabilityPolicy.VOLATILE)
         self.counts = dict.fromkeys(TOPICS, 0)
         self.states: list[bytes] = []
+        self.statuses: list[bytes] = []
         for topic in TOPICS:
             self.node.create_subscription(Float64MultiArray, topic, self._counter(topic), qos,
                                           raw=True)
@@ -72,7 +73,8 @@ class Witness:
 
     def _counter(self, topic: str):
         counts = self.counts
-        keep = self.states.append if topic == itf.TOPIC_STATE else None
+        keep = (self.states.append if topic == itf.TOPIC_STATE
+                else self.statuses.append if topic == itf.TOPIC_CONTROLLER_STATUS else None)
 
         def count(raw: bytes) -> None:
             counts[topic] += 1
@@ -80,10 +82,10 @@ class Witness:
                 keep(raw)
         return count
 
-    def state_round_trips(self):
-        """(n,) round trips of the /laser/state messages heard, in order."""
+    def state_round_trips(self, raws=None):
+        """(n,) round trips of the /laser/state (or ``raws``) messages heard, in order."""
         from dlmpc_ros.recording.reader import decode_float64_arrays
-        fields, data, _ = decode_float64_arrays(self.states)
+        fields, data, _ = decode_float64_arrays(self.states if raws is None else raws)
         return data[:, 0] if len(data) else data
 
     def close(self) -> None:
@@ -156,10 +158,20 @@ def run_once(round_trips: int, domain: int, work: Path) -> dict:
                        'witness': witness.counts[topic],
                        'bag': len(topics[topic]) if topic in topics else 0}
     heard = check_round_trips(witness.state_round_trips())
+    # Controller statuses (one per command) the witness missed: all before its first one
+    # means its own subscription matched the controller late (discovery), not a loss.
+    witness_status = set(witness.state_round_trips(witness.statuses).tolist())
+    bag_status = topics[itf.TOPIC_CONTROLLER_STATUS].column('round_trip').tolist() \
+        if itf.TOPIC_CONTROLLER_STATUS in topics else []
+    missed = [rt for rt in bag_status if rt not in witness_status]
+    first_heard = min(witness_status) if witness_status else None
     return {'round_trips': round_trips, 'seconds': round(seconds, 1),
             'rate': round(counts.get('laser_round_trips', 0) / seconds),
             'state_gaps': [list(g) for g in state.gaps],
             'witness_state': [heard.first, heard.last, [list(g) for g in heard.gaps]],
+            'witness_status_missed': len(missed),
+            'witness_status_missed_after_its_first': sum(
+                1 for rt in missed if first_heard is not None and rt > first_heard),
             'topics': rows,
             'rejected': counts.get('laser_messages_rejected')}
 
@@ -189,7 +201,9 @@ def main() -> None:
         runs.append(run)
         print(f'run {i + 1}: {run["rate"]} round trips/s over {run["seconds"]} s, bag state '
               f'gaps {run["state_gaps"]}, witness state first, last, gaps '
-              f'{run["witness_state"]}', flush=True)
+              f'{run["witness_state"]}, controller statuses the witness missed '
+              f'{run["witness_status_missed"]} (after its first: '
+              f'{run["witness_status_missed_after_its_first"]})', flush=True)
     print(table(runs))
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
