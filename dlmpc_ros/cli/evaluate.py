@@ -32,6 +32,7 @@ import itertools
 import json
 import sys
 import time
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -333,7 +334,8 @@ def _finished(run_dir: Path, spec: RunSpec, models_dir: Path) -> RunRecord | Non
     """The run's saved record, if it was made with these settings and models."""
     try:
         record = RunRecord.load(run_dir / 'record.npz')
-    except (OSError, ValueError, KeyError, TypeError):  # absent, partial or foreign
+    except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile):
+        # absent, cut short by a kill, or not a record
         return None
     wanted = json.loads(json.dumps(spec.meta(models_dir)))
     return record if all(record.meta.get(k) == v for k, v in wanted.items()) else None

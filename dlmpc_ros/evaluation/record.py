@@ -6,6 +6,7 @@ one format."""
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
@@ -49,7 +50,10 @@ class RunRecord:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         arrays = {f.name: getattr(self, f.name) for f in fields(self) if f.name != 'meta'}
-        np.savez_compressed(path, meta=np.array(json.dumps(self.meta)), **arrays)
+        partial = path.with_name(path.name + '.partial')  # a kill never leaves half a file
+        with open(partial, 'wb') as handle:
+            np.savez_compressed(handle, meta=np.array(json.dumps(self.meta)), **arrays)
+        os.replace(partial, path)
         return path
 
     @classmethod
