@@ -344,10 +344,33 @@ def main(argv: list[str] | None = None) -> int:
         print(f'bringup: nodes that did not exit cleanly: {unclean}', file=sys.stderr)
         code = max(code, 1)
     if args.plot is not None and args.csv is not None and args.csv.exists():
+        plot(args, plant)
+    return code
+
+
+def plot(args: argparse.Namespace, plant: dict[str, float]) -> None:
+    """The run's figure (with a controller: beside the uncontrolled laser and O*(K(t)),
+    and a summary line; else O and K)."""
+    from dlmpc_ros.recording.run_csv import decisions_path
+    if args.controller == 'none' or not decisions_path(args.csv).exists():
         from dlmpc_ros.plotting import plot_run_csv
         plot_run_csv(args.csv, args.plot)
         print(f'bringup: plot written to {args.plot}')
-    return code
+        return
+    from dataclasses import replace
+
+    from dlmpc_ros.evaluation.demo import demo_report
+    from dlmpc_ros.learning.tables import load_baselines
+    from dlmpc_ros.paths import models_dir
+    envelope = None if plant else load_baselines(
+        models_dir(args.models_dir or '') / 'oracle.npz')
+    try:
+        line = demo_report(args.csv, args.plot, args.controller, replace(NOMINAL, **plant),
+                           args.period, envelope)
+    except ValueError as err:
+        print(f'bringup: no plot: {err}', file=sys.stderr)
+        return
+    print(f'bringup: plot written to {args.plot}\nbringup: {line}', flush=True)
 
 
 if __name__ == '__main__':

@@ -19,15 +19,21 @@ ANGLE_NAMES = ('alpha1', 'alpha2', 'alpha3', 'alpha_p')
 
 
 def _smooth(x: np.ndarray, width: int) -> np.ndarray:
+    """Running mean over ``width`` samples, of the samples there are (edges, NaN)."""
     if width <= 1 or x.size < width:
         return x
-    return np.convolve(np.nan_to_num(x), np.ones(width) / width, mode='same')
+    valid = np.isfinite(x)
+    window = np.ones(width)
+    total = np.convolve(np.where(valid, x, 0.0), window, mode='same')
+    count = np.convolve(valid.astype(float), window, mode='same')
+    return np.where(count > 0, total / np.maximum(count, 1.0), np.nan)
 
 
-def plot_tracking(records: dict[str, RunRecord], envelope: dict[str, np.ndarray],
+def plot_tracking(records: dict[str, RunRecord], envelope: dict[str, np.ndarray] | None,
                   angles_of: str, title: str, path: Path) -> Path:
     """Three panels over round trips: O per controller (smoothed over 50 round trips) and
-    O*(K); K; the angles ``angles_of`` commanded."""
+    O*(K) (``envelope`` None: not drawn); K with the curve tracker's estimate of
+    ``angles_of`` where it tracked; the angles ``angles_of`` commanded."""
     import matplotlib
 
     matplotlib.use('Agg')
@@ -36,15 +42,21 @@ def plot_tracking(records: dict[str, RunRecord], envelope: dict[str, np.ndarray]
     fig, axes = plt.subplots(3, 1, figsize=(10, 8), sharex=True, constrained_layout=True)
     any_record = next(iter(records.values()))
     r = any_record.round_trip
-    axes[0].plot(r, envelope_objective(envelope, any_record.K), color='k', lw=1.2, ls='--',
-                 label='oracle envelope O*(K)')
+    if envelope is not None:
+        axes[0].plot(r, envelope_objective(envelope, any_record.K), color='k', lw=1.2,
+                     ls='--', label='envelope O*(K(t))')
     for name, record in records.items():
         axes[0].plot(record.round_trip, _smooth(record.O, 50), lw=1.0, label=name)
     axes[0].set_ylabel('O = E/M')
     axes[0].legend(ncol=3, fontsize=8, loc='lower right')
-    axes[1].plot(r, any_record.K, color='tab:red')
-    axes[1].set_ylabel('K (true)')
+    axes[1].plot(r, any_record.K, color='tab:red', label='K (true, never measured)')
     shown = records.get(angles_of, any_record)
+    track = _tracking(shown) & np.isfinite(shown.surrogate)
+    if track.any():
+        axes[1].plot(shown.control_round_trip[track], shown.surrogate[track], '.', ms=1.5,
+                     color='black', label=f'estimate of {angles_of} (curve tracker)')
+    axes[1].set_ylabel('K')
+    axes[1].legend(fontsize=8, loc='upper right')
     for i, name in enumerate(ANGLE_NAMES):
         axes[2].plot(shown.round_trip, shown.angles[:, i], lw=0.9, label=name)
     axes[2].set_ylabel(f'angles of {angles_of} [rad]')
