@@ -8,7 +8,7 @@ OUT    ?= out
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export ROS_LOG_DIR ?= $(CURDIR)/$(OUT)/ros-log
 
-.PHONY: venv test demo evaluate evaluate-plants bench fuzz lint data models clean
+.PHONY: venv test demo evaluate evaluate-plants bench fuzz ros2cli lint data models clean
 
 venv: $(STAMP)
 
@@ -57,6 +57,14 @@ evaluate-plants: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) bench/bench_cavity.py --out $(OUT)/bench
+
+# The real ros2 command line and colcon in .venv, for test/nodes/test_ros2_cli.py (from
+# ../shared/tools/install-ros2cli where it exists; without them those tests are skipped).
+ROS2CLI ?= ../shared/tools/install-ros2cli
+ros2cli: $(STAMP)
+	@if [ -x $(ROS2CLI) ]; then $(ROS2CLI) $(VENV) && $(PY) -m pip install --quiet \
+	    --disable-pip-version-check colcon-common-extensions==0.3.0 colcon-core==0.21.3 \
+	    colcon-ros==0.5.0; else echo "no $(ROS2CLI): the ros2 CLI tests will be skipped"; fi
 
 # Longer property-based fuzzing than make test runs (hypothesis profile 'long').
 fuzz: $(STAMP)

@@ -42,8 +42,8 @@ from test.nodes.rosutil import NodeProcess, Probe
 from test.strategies import any_float, any_int
 
 #: Examples per node: parameter changes and bursts at runtime, and fresh starts (a start
-#: costs seconds: the ci profile tries 20 and 2 per node, the long one 500 and 50).
-RUNTIME = settings(max_examples=max(10, settings.default.max_examples // 2))
+#: costs seconds: the ci profile tries 10 and 2 per node, the long one 250 and 50).
+RUNTIME = settings(max_examples=max(10, settings.default.max_examples // 4))
 STARTS = settings(max_examples=max(2, settings.default.max_examples // 20))
 #: Largest memory growth of a node over its runtime fuzz [bytes].
 MAX_GROWTH = 300 * 2 ** 20
