@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 OUT    ?= out
 # Isolate ROS traffic of tests and demos from anything else on the machine.
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
-export ROS_LOG_DIR ?= $(CURDIR)/$(OUT)/ros-log
+export ROS_LOG_DIR ?= $(abspath $(OUT))/ros-log
 
 .PHONY: venv test demo evaluate evaluate-plants bench fuzz ros2cli lint data models clean
 
