@@ -4,25 +4,14 @@ import numpy as np
 import pytest
 import torch
 
-from dlmpc_ros.learning.features import Normalizer, angle_features, features
+from dlmpc_ros.learning.features import Normalizer, features
 from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
 from dlmpc_ros.training.crbm import CRBMTrainConfig
 from dlmpc_ros.training.predictor import (TrainConfig, evaluate_horizon_errors, mprnn_loss,
                                           train_single_step, train_three_stage)
 from dlmpc_ros.training.windows import WindowBatch, WindowDataset
 
-CFG = MPRNNConfig(window=2, horizon=4, n_hidden=8, n_latent=6)
-N, H = CFG.horizon, CFG.min_history()
-
-
-def random_inputs(batch: int = 3, seed: int = 0, rows: int = H
-                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """history (batch, rows, 10), future_u (batch, N, 4), future_x (batch, N, 10)."""
-    gen = torch.Generator().manual_seed(seed)
-    angles = (torch.rand(batch, rows + N, 4, generator=gen) - 0.5) * torch.pi
-    states = torch.randn(batch, rows + N, 2, generator=gen)
-    x = torch.cat([states, angle_features(angles)], dim=-1)
-    return x[:, :rows], angles[:, rows:], x[:, rows:]
+from test.mprnn_inputs import CFG, H, N, random_inputs
 
 
 def test_windows_line_up_with_the_trajectories():
