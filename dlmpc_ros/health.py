@@ -20,6 +20,8 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+from dlmpc_ros.interfaces import RateLimitedLog
+
 OK, WARN, ERROR = 0, 1, 2
 LEVEL_NAMES = ('OK', 'WARN', 'ERROR')
 #: An input heard before and silent for longer than this is silent [s].
@@ -59,10 +61,10 @@ class Findings:
         message = '; '.join(self.errors or self.warnings) or doing
         return Health(level, message, tuple((k, _text(v)) for k, v in self.values.items()))
 
-    def new_drops(self, window: CounterWindow, dropped: Mapping[str, int],
-                  reasons: Mapping[str, str]) -> None:
-        """Report the messages dropped as malformed (per topic, with the last reason)
-        and warn about those dropped since the last report."""
+    def new_drops(self, window: CounterWindow, log: RateLimitedLog) -> None:
+        """Report the messages ``log`` dropped as malformed (per topic, with the last
+        reason) and warn about those dropped since the last report."""
+        dropped, reasons = dict(log.dropped_counts), dict(log.last_fault)
         fresh = window.delta({f'dropped {t}': n for t, n in dropped.items()})
         self.values['messages_dropped'] = sum(dropped.values())
         for topic in sorted(dropped):

@@ -4,6 +4,7 @@ import math
 
 import pytest
 
+from dlmpc_ros.interfaces import RateLimitedLog
 from dlmpc_ros.health import (ERROR, FIRST_INPUT_GRACE, OK, SILENT_AFTER, WARN, CounterWindow,
                               Findings, Health, controller_health, laser_health)
 
@@ -29,16 +30,19 @@ def test_an_input_is_waited_for_then_judged_by_its_age():
 
 def test_the_laser_warns_about_what_happened_since_the_last_report_only():
     window, drops = CounterWindow(), CounterWindow()
+    log = RateLimitedLog(lambda text: None)
+    for _ in range(3):
+        log.dropped('/laser/angles_cmd', 'expected 4 values')
     health = laser_health(Findings(), window, 100, 500.0, COUNTS, running=True)
     assert health.level == OK and health.message == 'round trip 100 at 500 round trips/s'
     assert health.value('commands_received') == '5' and health.value('rate_hz') == '500'
     f = Findings()
-    f.new_drops(drops, {'/laser/angles_cmd': 3}, {'/laser/angles_cmd': 'expected 4 values'})
+    f.new_drops(drops, log)
     health = laser_health(f, window, 200, 500.0, {**COUNTS, 'resets': 1}, running=True)
     assert health.level == WARN
     assert '1 field resets' in health.message and 'expected 4 values' in health.message
     f = Findings()
-    f.new_drops(drops, {'/laser/angles_cmd': 3}, {'/laser/angles_cmd': 'expected 4 values'})
+    f.new_drops(drops, log)
     health = laser_health(f, window, 300, 500.0, {**COUNTS, 'resets': 1}, running=True)
     assert health.level == OK and health.value('messages_dropped') == '3'
     stopped = laser_health(Findings(), window, 300, 0.0, COUNTS, running=False)

@@ -92,8 +92,7 @@ class DriftInjectorNode(Node):
     def _health(self, findings: Findings, now: float) -> Health:
         findings.values.update(scenario=self._scenario_name, k_published=self.published,
                                furthest_round_trip=self._furthest)
-        findings.new_drops(self._drops, dict(self._warn.dropped_counts),
-                           dict(self._warn.last_fault))
+        findings.new_drops(self._drops, self._warn)
         findings.input(itf.TOPIC_STATE, self._last_state, self._diagnostics.started, now,
                        silent_level=WARN)
         return findings.health(f'{self.published} K published, scenario '

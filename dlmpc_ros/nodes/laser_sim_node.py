@@ -119,7 +119,7 @@ class LaserSimNode(Node):
                                                  QOS[itf.TOPIC_LASER_STATUS])
         self._rate_mark = (time.monotonic(), 0)
         self.create_timer(1.0, self._publish_status)
-        self._health_mark = (time.monotonic(), 0)
+        self._rate = 0.0  # round trips per second over the last status period
         self._health_windows = (CounterWindow(), CounterWindow())
         DiagnosticsPublisher(self, self._health, hardware_id='simulated cavity')
         for topic, handler in ((itf.TOPIC_ANGLES_CMD, self._on_angles),
@@ -191,24 +191,21 @@ class LaserSimNode(Node):
         now, round_trip = time.monotonic(), self.cavity.round_trip
         then, before = self._rate_mark
         self._rate_mark = (now, round_trip)
+        self._rate = (round_trip - before) / (now - then)
         with self._lock:
             counts = list(self.counts.values())
         self._status_pub.publish(vector_message(
-            itf.LASER_STATUS_FIELDS, [round_trip, (round_trip - before) / (now - then), *counts]))
+            itf.LASER_STATUS_FIELDS, [round_trip, self._rate, *counts]))
 
     def _health(self, findings: Findings, now: float) -> Health:
-        then, before = self._health_mark
-        round_trip = self.cavity.round_trip
-        self._health_mark = (now, round_trip)
         with self._lock:
             counts = dict(self.counts)
         rate = self.values['round_trips_per_second']
         findings.values['pace'] = ('lockstep' if self.values['lockstep_period'] > 0
                                    else f'{rate:g} round trips/s' if rate > 0 else 'free-run')
-        drops, windows = self._warn, self._health_windows
-        findings.new_drops(windows[0], dict(drops.dropped_counts), dict(drops.last_fault))
-        return laser_health(findings, windows[1], round_trip,
-                            (round_trip - before) / max(now - then, 1e-9), counts,
+        drops, counters = self._health_windows
+        findings.new_drops(drops, self._warn)
+        return laser_health(findings, counters, self.cavity.round_trip, self._rate, counts,
                             running=self.exit_code == 0)
 
     def _wait_for(self, counter: str, seen: int) -> None:

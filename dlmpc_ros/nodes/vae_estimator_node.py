@@ -77,8 +77,7 @@ class VAEEstimatorNode(Node):
     def _health(self, findings: Findings, now: float) -> Health:
         findings.values.update(estimates_published=self.published,
                                latency_ms=self._latency_ms)
-        findings.new_drops(self._drops, dict(self._warn.dropped_counts),
-                           dict(self._warn.last_fault))
+        findings.new_drops(self._drops, self._warn)
         findings.input(itf.TOPIC_STATE, self._last_state, self._diagnostics.started, now)
         return findings.health(f'{self.published} estimates published')
 

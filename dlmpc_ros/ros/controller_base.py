@@ -103,8 +103,7 @@ class ControllerNodeBase(Node):
         self._diagnostics = DiagnosticsPublisher(self, self._health)
 
     def _health(self, findings: Findings, now: float) -> Health:
-        findings.new_drops(self._drops, dict(self._warn.dropped_counts),
-                           dict(self._warn.last_fault))
+        findings.new_drops(self._drops, self._warn)
         started = self._diagnostics.started
         findings.input(itf.TOPIC_STATE, self._last_state, started, now, silent_level=ERROR)
         if self.uses_estimator:  # the controller holds without it: a warning
