@@ -93,7 +93,7 @@ class DLMPCController:
         if target_objective is not None and curve is not None and cfg.tracking is not None:
             grid, angles, expected = curve
             self.tracker = CurveTracker(grid, angles, lock_fraction * target_objective,
-                                        cfg.tracking, expected)
+                                        cfg.tracking, expected, cfg.limits)
         self.monitor = PredictionMonitor(mprnn, cfg)
         self.outer = OuterLoop(self.monitor, cfg)
         self.modes: list[Mode] = [

@@ -162,7 +162,7 @@ class TrackMode:
         self.tracker = tracker
 
     def decide(self, period: Period) -> Decision | None:
-        on_curve = self.tracker.step(period.objective)
+        on_curve = self.tracker.step(period.objective, period.current)
         if on_curve is None:
             return None
         return Decision(on_curve, self.name, surrogate=self.tracker.estimate)

@@ -17,6 +17,16 @@ periods, twice as long after each failed entry, before trying again). Where the 
 flat the estimate can rest on a plateau away from K; when O stays below ``survey_ratio``
 x the curve's own steady O at the estimate, it surveys the whole curve once and
 continues from the best point it saw.
+
+The curve is best for K < 0 only: the cavity's mirror symmetry
+(:mod:`dlmpc_ros.core.symmetry`) gives its twin ``m(s) = c(-s) + pi/2`` (every element
+turned by a quarter turn), which is as good at K as the curve is at -K. At K = 0 the fiber
+is isotropic and turning all four elements together is an exact symmetry, so the laser
+keeps its pulse while the servos turn from one branch to the other. The tracker therefore
+tracks on the curve while its estimate is below ``mirror_margin`` and on the twin while it
+is above ``-mirror_margin``; when the estimate leaves its branch's side, it turns all four
+angles together by a quarter turn, ``rotation_step`` per period (in the direction that
+keeps every angle inside the servo limits), and goes on on the other branch.
 """
 
 from __future__ import annotations
@@ -26,6 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.core.symmetry import QUARTER_TURN
 from dlmpc_ros.learning.curve import check_curve
 
 
@@ -75,6 +87,20 @@ class TrackingConfig:
     """Periods the survey waits at each point (twice that at the first)."""
     survey_cooldown: int = 300
     """Periods after a survey before the next may start."""
+    mirror: bool = True
+    """Track on the curve's mirror twin where the estimate says K > 0 (False: on the curve
+    everywhere, as it was trained)."""
+    mirror_margin: float = 0.03
+    """How far past K = 0 the estimate must go before the tracker turns to the other
+    branch (hysteresis, K units)."""
+    rotation_step: float = 0.2
+    """Turn of all four angles per period while changing branch [rad] (at most the servo
+    speed)."""
+    turn_guard: float = 0.95
+    """During a change of branch, O below this fraction of the O before it means K is not
+    near 0: the tracker turns back."""
+    turn_cooldown: int = 100
+    """Periods after a turn (made or given up) before the next may start."""
 
     def __post_init__(self) -> None:
         if not (self.dither > 0 and 0 < self.min_step <= self.step <= self.max_step
@@ -93,6 +119,10 @@ class TrackingConfig:
                 or min(self.survey_patience, self.survey_dwell, self.survey_cooldown) < 1:
             raise ValueError('survey_ratio must be in (0, 1], survey_spacing > 0 and the '
                              'survey periods >= 1')
+        if not (self.mirror_margin >= 0 and 0 < self.rotation_step <= QUARTER_TURN
+                and 0 < self.turn_guard <= 1 and self.turn_cooldown >= 1):
+            raise ValueError('need mirror_margin >= 0, 0 < rotation_step <= pi/2, '
+                             '0 < turn_guard <= 1 and turn_cooldown >= 1')
 
 
 class CurveTracker:
@@ -102,18 +132,30 @@ class CurveTracker:
     ``grid`` (n,) increasing curve parameters and ``angles`` (n, 4) [rad] the curve's
     angle sets, continuous along the grid; ``threshold`` is the objective at and above
     which the laser counts as locked (E/M units); ``expected`` (n,), the steady O on the
-    curve at each grid point, enables the survey (None: no survey).
+    curve at each grid point, enables the survey (None: no survey). ``limits`` are the
+    servo limits a change of branch must stay inside (default: :class:`AngleLimits`).
     """
 
     def __init__(self, grid: np.ndarray, angles: np.ndarray, threshold: float,
                  config: TrackingConfig | None = None,
-                 expected: np.ndarray | None = None) -> None:
+                 expected: np.ndarray | None = None,
+                 limits: AngleLimits | None = None) -> None:
         self.grid, self.angles, self.expected = check_curve(grid, angles, expected)
         if not threshold > 0:
             raise ValueError(f'lock threshold must be > 0, got {threshold}')
         self.config = config or TrackingConfig()
         self.threshold = float(threshold)
+        self.limits = limits or AngleLimits()
         self.active = False
+        self.branch = 1           # 1: on the curve; -1: on its mirror twin
+        self.branch_changes = 0   # quarter turns completed
+        self.turns_abandoned = 0  # quarter turns given up (O fell: K was not near 0)
+        self._turn: list[np.ndarray] = []  # the rest of a quarter turn (or its way back)
+        self._turned: list[np.ndarray] = []  # commands of the turn issued so far
+        self._turn_from = np.zeros(4)        # the angles the turn started from
+        self._turn_objective = 0.0           # O measured just before it
+        self._turning_back = False
+        self._turn_wait = 0                  # periods before the next attempt
         self._locked = 0          # consecutive locked periods while not tracking
         self._recent: deque[float] = deque(maxlen=self.config.entry_patience)
         self._entry_objective = 0.0
@@ -126,24 +168,35 @@ class CurveTracker:
         self._recentre()          # estimate at start; age, guard, dither and steps reset
 
     def curve(self, s: float) -> np.ndarray:
-        """The curve's angles (4,) [rad] at parameter ``s`` (clipped to the grid)."""
-        s = float(np.clip(s, self.grid[0], self.grid[-1]))
-        return np.array([np.interp(s, self.grid, self.angles[:, j]) for j in range(4)])
+        """The angles (4,) [rad] at parameter ``s`` (clipped to the grid) on the branch the
+        tracker is on: the curve, or its twin ``c(-s) + pi/2``."""
+        s = float(np.clip(self.branch * s, self.grid[0], self.grid[-1]))
+        on_curve = np.array([np.interp(s, self.grid, self.angles[:, j]) for j in range(4)])
+        return on_curve if self.branch == 1 else on_curve + QUARTER_TURN
+
+    def expected_objective(self, s: float) -> float:
+        """The curve's own steady O at ``s`` on the current branch (needs ``expected``)."""
+        return float(np.interp(self.branch * s, self.grid, self.expected))
 
     def interrupt(self) -> None:
         """Something else took over (the acquisition scan): stop and wait a cooldown."""
-        self._survey = []
+        self._survey, self._turn, self._turning_back = [], [], False
         if self.active:
             self._leave(failed=self._age <= self.config.settle + self.config.guard_periods)
         self._locked = 0
         self._recent.clear()
 
-    def step(self, objective: float) -> np.ndarray | None:
-        """This period's measured O -> the curve's angles for the next period, or None."""
+    def step(self, objective: float, current: np.ndarray | None = None) -> np.ndarray | None:
+        """This period's measured O and the angles (4,) [rad] it ran with -> the curve's
+        angles for the next period, or None. Without ``current`` the branch never changes."""
         locked = bool(np.isfinite(objective) and objective >= self.threshold)
         if not self.active:
             return self._maybe_enter(objective, locked)
         self._age += 1
+        if self._turn_wait > 0:
+            self._turn_wait -= 1
+        if self._turn:
+            return self._turning(float(objective))
         if self._survey:
             return self._survey_step(float(objective))
         if self._age > self.config.settle:
@@ -163,15 +216,63 @@ class CurveTracker:
         self._in_block += 1
         if self._in_block >= self.config.block:
             self._end_block(float(objective))
+            if current is not None and self._wants_other_branch():
+                turn = self._plan_turn(np.asarray(current, float))
+                if turn:
+                    self._turn, self._turned = turn, []
+                    self._turn_from = np.asarray(current, float)
+                    self._turn_objective = float(objective)
+                    return self._turning(float(objective))
         return self.curve(self.estimate + self._sign * self.config.dither)
+
+    def _wants_other_branch(self) -> bool:
+        """Whether the estimate has gone past the margin onto the other branch's side (and
+        no failed turn is still cooling down)."""
+        return (self.config.mirror and self._turn_wait == 0
+                and self.branch * self.estimate > self.config.mirror_margin)
+
+    def _plan_turn(self, current: np.ndarray) -> list[np.ndarray]:
+        """The commands (each (4,) [rad]) that turn all four angles together by a quarter
+        turn, in the direction that stays inside the servo limits; [] if neither does."""
+        for direction in (1.0, -1.0):
+            end = current + direction * QUARTER_TURN
+            if np.all(end >= self.limits.low) and np.all(end <= self.limits.high):
+                steps = int(np.ceil(QUARTER_TURN / self.config.rotation_step - 1e-9))
+                return [current + direction * QUARTER_TURN * (i + 1) / steps
+                        for i in range(steps)]
+        return []
+
+    def _turning(self, objective: float) -> np.ndarray:
+        """The next command of the quarter turn; after its last, the other branch. The
+        turn is exact only near K = 0: if O falls under ``turn_guard`` x the O before it,
+        the tracker turns back the way it came and waits ``turn_cooldown`` periods."""
+        cfg = self.config
+        if (self._turned and not self._turning_back
+                and not objective >= cfg.turn_guard * self._turn_objective):
+            self._turning_back = True
+            self._turn = self._turned[-2::-1] + [self._turn_from]
+        command = self._turn.pop(0)
+        self._turned.append(command)
+        if not self._turn:
+            if self._turning_back:
+                self._turning_back = False
+                self.turns_abandoned += 1
+            else:
+                self.branch = -self.branch
+                self.branch_changes += 1
+            self._turn_wait = cfg.turn_cooldown
+            self._blocks.clear()
+            self._sign, self._in_block = 1.0, 0
+            self._step, self._last_move = cfg.step, 0.0  # the Rprop step starts afresh
+            self._age = min(self._age, cfg.settle)  # let the guard settle again
+        return command
 
     def _should_survey(self, objective: float) -> bool:
         if self._survey_wait > 0:
             self._survey_wait -= 1
         if self.expected is None:
             return False
-        level = self.config.survey_ratio * float(np.interp(self.estimate, self.grid,
-                                                           self.expected))
+        level = self.config.survey_ratio * self.expected_objective(self.estimate)
         self._short = self._short + 1 if not objective >= level else 0
         return self._short >= self.config.survey_patience and self._survey_wait == 0
 
@@ -218,7 +319,9 @@ class CurveTracker:
         # periods since entry; consecutive periods under the guard and under the survey level
         self._age, self._low, self._short = 0, 0, 0
         self._survey: list[float] = []  # survey points still to visit
-        self.estimate = float(np.clip(self.config.start, self.grid[0], self.grid[-1]))
+        # the start point on the branch the tracker is on (its twin on the mirror branch)
+        self.estimate = self.branch * float(np.clip(self.config.start, self.grid[0],
+                                                    self.grid[-1]))
         self._sign, self._in_block = 1.0, 0  # sign of the dither in the current block
         self._blocks.clear()
         self._step, self._last_move = self.config.step, 0.0  # Rprop step and last sign

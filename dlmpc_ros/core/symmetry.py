@@ -22,6 +22,11 @@ import numpy as np
 
 #: What the mirror adds to ``(alpha1, alpha2, alpha3, alpha_p)`` [rad].
 ANGLE_SHIFT = np.array([math.pi / 2, math.pi / 2, 0.0, math.pi / 2])
+#: A quarter turn [rad]. Turning all four elements by it is the mirror too (the half-wave
+#: plate turned by pi/2 only flips the field's sign), and at K = 0, where the fiber is
+#: isotropic, turning all four together by any angle maps steady states onto steady
+#: states: a laser keeps its pulse while its servos turn from one twin to the other.
+QUARTER_TURN = math.pi / 2
 
 
 def mirror_angles(angles: np.ndarray) -> np.ndarray:

@@ -1,12 +1,16 @@
 """Curve tracking: entry, extremum seeking along the curve, the guard."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
 
 from dlmpc_ros.control.dlmpc import DLMPCController
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
+from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.tracking import CurveTracker, TrackingConfig
+from dlmpc_ros.core.symmetry import QUARTER_TURN
 from dlmpc_ros.learning.kmap import KMap, KMapConfig
 from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
 
@@ -123,10 +127,94 @@ def test_interrupt_stops_tracking():
     assert [tracker.step(0.2) is None for _ in range(4)] == [True, True, True, False]
 
 
+def _mirrored_objective(cmd: np.ndarray, k: float, angles: np.ndarray = ANGLES) -> float:
+    """A toy laser with the cavity's mirror symmetry: the curve c is best for K < 0, its
+    twin c(-s) + pi/2 (all four angles a quarter turn on) for K > 0, and a half-way turn
+    costs O in proportion to K^2 (free at K = 0, where turning is a symmetry)."""
+    theta = cmd[1] - angles[0, 1]                 # how far all four are turned
+    u = (cmd[0] - theta) / 2                      # the curve point that was turned
+
+    def on_curve(s: float, kk: float) -> float:
+        return 0.2 - 3.0 * (s - kk) ** 2 - 0.1 * max(kk, 0.0)
+    w = np.sin(theta) ** 2                        # 0 on the curve, 1 on the twin
+    mixed = (1 - w) * on_curve(u, k) + w * on_curve(u, -k)
+    return mixed * (1 - 10 * k ** 2 * np.sin(2 * theta) ** 2)
+
+
+def _drive_mirrored(tracker: CurveTracker, k_of_period, periods: int,
+                    angles: np.ndarray = ANGLES):
+    """Feed the tracker the mirrored toy's O and the angles it ran with; (O, commands,
+    branch) per period."""
+    o, current, objectives, commands, branch = 0.2, None, [], [], []
+    for t in range(periods):
+        cmd = tracker.step(o, current)
+        if cmd is not None:  # through the servo limits, as the supervisor sends it
+            current = tracker.limits.apply(cmd if current is None else current, cmd)
+            cmd = current
+            o = _mirrored_objective(cmd, k_of_period(t), angles)
+        objectives.append(o)
+        commands.append(current)
+        branch.append(tracker.branch)
+    return np.array(objectives), commands, np.array(branch)
+
+
+def test_tracker_turns_to_the_mirror_twin_when_k_drifts_through_zero():
+    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1)
+    drift = lambda t: -0.15 + 0.3 * min(t / 2500, 1.0)          # noqa: E731
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
+    o, _, branch = _drive_mirrored(tracker, drift, 3000)
+    assert tracker.branch == -1 and tracker.turns_abandoned == 0
+    changed = np.flatnonzero(np.diff(branch)) + 1
+    assert changed.size == tracker.branch_changes >= 1
+    assert max(abs(drift(t)) for t in changed) < 0.06  # turns happen where K is near 0
+    assert abs(tracker.estimate - 0.15) < 0.05
+    # on the twin at K = 0.15 the toy gives 0.2 (less the dither's cost), the curve 0.185
+    assert np.mean(o[-100:]) > 0.19
+    # the turns kept the pulse (the toy's O falls to 0.1 halfway round at |K| = 0.1)
+    assert o[200:].min() > 0.16
+    # without the mirror it stays on the curve and pays for it
+    plain = CurveTracker(GRID, ANGLES, threshold=0.1, config=replace(cfg, mirror=False))
+    o_plain, _, _ = _drive_mirrored(plain, drift, 3000)
+    assert plain.branch == 1 and np.mean(o_plain[-100:]) < 0.186
+
+
+def test_a_turn_far_from_k_zero_is_abandoned_and_the_pulse_kept():
+    """K runs from -0.1 to 0.15 in 30 periods: the estimate runs past the margin late, the quarter turn
+    starts, O falls under the turn guard after a few steps, and the tracker turns back
+    instead of crossing at |K| = 0.15."""
+    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, turn_cooldown=1000)
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
+    jump = lambda t: -0.1 + 0.25 * min(max(t - 300, 0) / 30, 1.0)  # noqa: E731
+    o, commands, branch = _drive_mirrored(tracker, jump, 1200)
+    assert tracker.turns_abandoned == 1 and tracker.branch_changes == 0
+    assert np.all(branch == 1)
+    turned = np.array([c[1] - ANGLES[0, 1] for c in commands if c is not None])
+    out = int(np.argmax(np.abs(turned)))
+    assert 0 < abs(turned[out]) < QUARTER_TURN / 2          # part of the way round ...
+    assert np.any(turned[out:] == 0.0)                      # ... and back to where it was
+    steps = int(round(abs(turned[out]) / (QUARTER_TURN / 8)))
+    assert o[out] > 0.9 * o[out - steps]                    # before O fell far
+
+
+def test_a_turn_stays_inside_the_servo_limits():
+    """A curve whose angles sit near +pi turns the other way round."""
+    high = ANGLES + np.array([0.0, 0.0, 2.9, 0.0])
+    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1)
+    limits = AngleLimits()
+    tracker = CurveTracker(GRID, high, threshold=0.1, config=cfg, limits=limits)
+    drift = lambda t: -0.15 + 0.3 * min(t / 2500, 1.0)          # noqa: E731
+    _, commands, _ = _drive_mirrored(tracker, drift, 3000, angles=high)
+    assert tracker.branch == -1
+    issued = np.array([c for c in commands if c is not None])
+    assert issued.max() <= limits.high and issued.min() >= limits.low
+
+
 @pytest.mark.parametrize('bad', [dict(dither=0), dict(step=-1), dict(block=0), dict(guard=0),
                                  dict(guard=1.5), dict(settle=-1), dict(cooldown=0),
                                  dict(survey_ratio=0), dict(survey_spacing=0),
-                                 dict(survey_dwell=0)])
+                                 dict(survey_dwell=0), dict(mirror_margin=-0.1),
+                                 dict(rotation_step=0), dict(rotation_step=2.0),
+                                 dict(turn_guard=0), dict(turn_cooldown=0)])
 def test_bad_tracking_settings_are_rejected(bad):
     with pytest.raises(ValueError):
         TrackingConfig(**bad)
