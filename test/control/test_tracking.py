@@ -179,9 +179,9 @@ def test_tracker_turns_to_the_mirror_twin_when_k_drifts_through_zero():
 
 
 def test_a_turn_far_from_k_zero_is_abandoned_and_the_pulse_kept():
-    """K runs from -0.1 to 0.15 in 30 periods: the estimate runs past the margin late, the quarter turn
-    starts, O falls under the turn guard after a few steps, and the tracker turns back
-    instead of crossing at |K| = 0.15."""
+    """K runs from -0.1 to 0.15 in 30 periods: the estimate passes the margin late, the
+    quarter turn starts, O falls under the turn guard after a few steps, and the tracker
+    turns back instead of crossing at |K| = 0.15."""
     cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, turn_cooldown=1000)
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
     jump = lambda t: -0.1 + 0.25 * min(max(t - 300, 0) / 30, 1.0)  # noqa: E731
