@@ -20,13 +20,18 @@ continues from the best point it saw.
 
 The curve is best for K < 0 only: the cavity's mirror symmetry
 (:mod:`dlmpc_ros.core.symmetry`) gives its twin ``m(s) = c(-s) + pi/2`` (every element
-turned by a quarter turn), which is as good at K as the curve is at -K. At K = 0 the fiber
-is isotropic and turning all four elements together is an exact symmetry, so the laser
-keeps its pulse while the servos turn from one branch to the other. The tracker therefore
-tracks on the curve while its estimate is below ``mirror_margin`` and on the twin while it
-is above ``-mirror_margin``; when the estimate leaves its branch's side, it turns all four
-angles together by a quarter turn, ``rotation_step`` per period (in the direction that
-keeps every angle inside the servo limits), and goes on on the other branch.
+turned by a quarter turn), which is as good at K as the curve is at -K. The tracker
+tracks on the curve while its estimate is below ``mirror_margin`` and on the twin while
+it is above ``-mirror_margin``. When the estimate leaves its branch's side it turns to
+the other branch along a path that keeps the pulse (measured on the simulator at every K
+up to |K| = 0.3, O never under 0.73 of its start): over ``ceil(pi/2 / rotation_step)``
+periods all four angles turn together by a quarter turn while the curve parameter runs
+from the estimate's point to its mirror image, so the estimate stays where it was. At
+K = 0, where the fiber is isotropic, the turn is an exact symmetry. Turning one way keeps
+the pulse, the other way loses it for |K| > 0.1 on the simulator; a real laser's sign
+conventions are not known, so the tracker starts with the simulator's way and, when O
+falls under ``turn_guard`` x its O before the turn, turns back the way it came and tries
+the other way the next time.
 """
 
 from __future__ import annotations
@@ -96,9 +101,12 @@ class TrackingConfig:
     rotation_step: float = 0.2
     """Turn of all four angles per period while changing branch [rad] (at most the servo
     speed)."""
-    turn_guard: float = 0.95
-    """During a change of branch, O below this fraction of the O before it means K is not
-    near 0: the tracker turns back."""
+    free_turn: float = 0.06
+    """Within this distance of K = 0 (K units) both ways round keep the pulse; the tracker
+    then turns the way that unwinds the servos toward the middle of their range."""
+    turn_guard: float = 0.6
+    """During a change of branch, O below this fraction of the O before it means the turn
+    is losing the pulse: the tracker turns back (and turns the other way next time)."""
     turn_cooldown: int = 100
     """Periods after a turn (made or given up) before the next may start."""
 
@@ -120,9 +128,10 @@ class TrackingConfig:
             raise ValueError('survey_ratio must be in (0, 1], survey_spacing > 0 and the '
                              'survey periods >= 1')
         if not (self.mirror_margin >= 0 and 0 < self.rotation_step <= QUARTER_TURN
-                and 0 < self.turn_guard <= 1 and self.turn_cooldown >= 1):
+                and self.free_turn >= 0 and 0 < self.turn_guard <= 1
+                and self.turn_cooldown >= 1):
             raise ValueError('need mirror_margin >= 0, 0 < rotation_step <= pi/2, '
-                             '0 < turn_guard <= 1 and turn_cooldown >= 1')
+                             'free_turn >= 0, 0 < turn_guard <= 1 and turn_cooldown >= 1')
 
 
 class CurveTracker:
@@ -149,7 +158,10 @@ class CurveTracker:
         self.active = False
         self.branch = 1           # 1: on the curve; -1: on its mirror twin
         self.branch_changes = 0   # quarter turns completed
-        self.turns_abandoned = 0  # quarter turns given up (O fell: K was not near 0)
+        self.turns_abandoned = 0  # quarter turns given up (O fell)
+        self.turns_blocked = 0    # quarter turns the servo limits did not allow
+        self.turn_direction = -1.0  # the way of turning that kept the pulse last
+        self._turn_way = -1.0       # the way the turn under way goes
         self._turn: list[np.ndarray] = []  # the rest of a quarter turn (or its way back)
         self._turned: list[np.ndarray] = []  # commands of the turn issued so far
         self._turn_from = np.zeros(4)        # the angles the turn started from
@@ -170,9 +182,13 @@ class CurveTracker:
     def curve(self, s: float) -> np.ndarray:
         """The angles (4,) [rad] at parameter ``s`` (clipped to the grid) on the branch the
         tracker is on: the curve, or its twin ``c(-s) + pi/2``."""
-        s = float(np.clip(self.branch * s, self.grid[0], self.grid[-1]))
-        on_curve = np.array([np.interp(s, self.grid, self.angles[:, j]) for j in range(4)])
+        on_curve = self._on_curve(self.branch * s)
         return on_curve if self.branch == 1 else on_curve + QUARTER_TURN
+
+    def _on_curve(self, u: float) -> np.ndarray:
+        """The curve's own angles (4,) [rad] at ``u`` (clipped to the grid)."""
+        u = float(np.clip(u, self.grid[0], self.grid[-1]))
+        return np.array([np.interp(u, self.grid, self.angles[:, j]) for j in range(4)])
 
     def expected_objective(self, s: float) -> float:
         """The curve's own steady O at ``s`` on the current branch (needs ``expected``)."""
@@ -232,14 +248,32 @@ class CurveTracker:
                 and self.branch * self.estimate > self.config.mirror_margin)
 
     def _plan_turn(self, current: np.ndarray) -> list[np.ndarray]:
-        """The commands (each (4,) [rad]) that turn all four angles together by a quarter
-        turn, in the direction that stays inside the servo limits; [] if neither does."""
-        for direction in (1.0, -1.0):
-            end = current + direction * QUARTER_TURN
-            if np.all(end >= self.limits.low) and np.all(end <= self.limits.high):
-                steps = int(np.ceil(QUARTER_TURN / self.config.rotation_step - 1e-9))
-                return [current + direction * QUARTER_TURN * (i + 1) / steps
-                        for i in range(steps)]
+        """The commands (each (4,) [rad], from the angles ``current``) that take the laser
+        to the other branch at the same estimate: a quarter turn of all four angles while
+        the curve parameter runs from ``u`` to ``-u``; [] (and counted) if no way round
+        stays inside the servo limits.
+
+        Near K = 0 (``|u| <= free_turn``) either way keeps the pulse, and the tracker turns
+        the way that brings the angles back toward the middle of their range (so that
+        turns back and forth do not wind the servos up to their ends); further out it
+        turns the way that kept the pulse last."""
+        u = self.branch * float(np.clip(self.estimate, self.grid[0], self.grid[-1]))
+        steps = int(np.ceil(QUARTER_TURN / self.config.rotation_step - 1e-9))
+        start = self._on_curve(u)
+        fractions = (np.arange(steps) + 1) / steps
+        middle = 0.5 * (self.limits.low + self.limits.high)
+        ways = ([self.turn_direction] if abs(u) > self.config.free_turn else
+                sorted((-1.0, 1.0), key=lambda d: abs(np.mean(current) + d * QUARTER_TURN
+                                                      - middle)))
+        for way in ways:
+            path = [current + self._on_curve(u * (1 - 2 * t)) - start + way * QUARTER_TURN * t
+                    for t in fractions]
+            if all(np.all(a >= self.limits.low) and np.all(a <= self.limits.high)
+                   for a in path):
+                self._turn_way = way
+                return path
+        self.turns_blocked += 1
+        self._turn_wait = self.config.turn_cooldown
         return []
 
     def _turning(self, objective: float) -> np.ndarray:
@@ -257,6 +291,7 @@ class CurveTracker:
             if self._turning_back:
                 self._turning_back = False
                 self.turns_abandoned += 1
+                self.turn_direction = -self._turn_way  # the other way next time
             else:
                 self.branch = -self.branch
                 self.branch_changes += 1

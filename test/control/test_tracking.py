@@ -129,16 +129,19 @@ def test_interrupt_stops_tracking():
 
 def _mirrored_objective(cmd: np.ndarray, k: float, angles: np.ndarray = ANGLES) -> float:
     """A toy laser with the cavity's mirror symmetry: the curve c is best for K < 0, its
-    twin c(-s) + pi/2 (all four angles a quarter turn on) for K > 0, and a half-way turn
-    costs O in proportion to K^2 (free at K = 0, where turning is a symmetry)."""
+    twin c(-s) + pi/2 (all four angles a quarter turn on) for K > 0. Half-way round
+    costs O in proportion to K^2 (nothing at K = 0, where turning is a symmetry), little
+    on one side of the circle and a lot on the other, which side depending on K's sign
+    (as on the simulator)."""
     theta = cmd[1] - angles[0, 1]                 # how far all four are turned
     u = (cmd[0] - theta) / 2                      # the curve point that was turned
 
     def on_curve(s: float, kk: float) -> float:
-        return 0.2 - 3.0 * (s - kk) ** 2 - 0.1 * max(kk, 0.0)
+        return 0.2 - 1.0 * (s - kk) ** 2 - 0.1 * max(kk, 0.0)
     w = np.sin(theta) ** 2                        # 0 on the curve, 1 on the twin
     mixed = (1 - w) * on_curve(u, k) + w * on_curve(u, -k)
-    return mixed * (1 - 10 * k ** 2 * np.sin(2 * theta) ** 2)
+    wrong_way = k * (np.mod(theta, np.pi) - np.pi / 2) < 0
+    return mixed * max(1 - (400.0 if wrong_way else 1.0) * k ** 2 * np.sin(2 * theta) ** 2, 0)
 
 
 def _drive_mirrored(tracker: CurveTracker, k_of_period, periods: int,
@@ -178,22 +181,27 @@ def test_tracker_turns_to_the_mirror_twin_when_k_drifts_through_zero():
     assert plain.branch == 1 and np.mean(o_plain[-100:]) < 0.186
 
 
-def test_a_turn_far_from_k_zero_is_abandoned_and_the_pulse_kept():
-    """K runs from -0.1 to 0.15 in 30 periods: the estimate passes the margin late, the
-    quarter turn starts, O falls under the turn guard after a few steps, and the tracker
-    turns back instead of crossing at |K| = 0.15."""
-    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, turn_cooldown=1000)
+def test_a_turn_that_loses_the_pulse_is_turned_back_and_tried_the_other_way():
+    """A laser whose sign conventions are the other way round from the simulator's: K
+    runs from -0.1 to 0.15 in 200 periods, the estimate passes the margin, the quarter turn in the
+    simulator's direction starts losing O, the tracker turns back before O falls far,
+    and after the cooldown turns the other way, onto the twin."""
+    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, turn_cooldown=30,
+                         mirror_margin=0.08)
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
-    jump = lambda t: -0.1 + 0.25 * min(max(t - 300, 0) / 30, 1.0)  # noqa: E731
-    o, commands, branch = _drive_mirrored(tracker, jump, 1200)
-    assert tracker.turns_abandoned == 1 and tracker.branch_changes == 0
-    assert np.all(branch == 1)
+    tracker.turn_direction = 1.0                                  # the wrong way here
+    ramp = lambda t: -0.1 + 0.25 * min(max(t - 300, 0) / 200, 1.0)  # noqa: E731
+    o, commands, branch = _drive_mirrored(tracker, ramp, 1200)
+    assert tracker.turns_abandoned == 1 and tracker.turn_direction == -1.0
+    assert tracker.branch == -1 and tracker.branch_changes == 1
     turned = np.array([c[1] - ANGLES[0, 1] for c in commands if c is not None])
-    out = int(np.argmax(np.abs(turned)))
-    assert 0 < abs(turned[out]) < QUARTER_TURN / 2          # part of the way round ...
-    assert np.any(turned[out:] == 0.0)                      # ... and back to where it was
-    steps = int(round(abs(turned[out]) / (QUARTER_TURN / 8)))
-    assert o[out] > 0.9 * o[out - steps]                    # before O fell far
+    out = int(np.argmax(turned))                             # the furthest the wrong way
+    assert 0 < turned[out] < QUARTER_TURN / 2                # part of the way round ...
+    assert turned[out + 1:].max() < turned[out]              # ... and back
+    steps = int(round(turned[out] / (QUARTER_TURN / 8)))
+    before = o[out - steps]                                  # O just before the turn
+    assert np.sum(o[out - steps:out + steps + 1] < cfg.turn_guard * before) == 1  # at once
+    assert np.mean(o[-100:]) > 0.19                          # on the twin at K = 0.15
 
 
 def test_a_turn_stays_inside_the_servo_limits():
