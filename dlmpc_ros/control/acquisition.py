@@ -4,18 +4,25 @@ Off a pulse the measurement says little about K (a continuous-wave or noisy fiel
 alike for every K), so the surrogate and the map are no guide, and the angles they give
 may hold the laser off the pulse for ever. The supervisor watches the measured objective
 O = E/M against a lock threshold (a fraction of the mean O of the map's own training
-targets: no K) and, after ``patience`` unlocked periods, scans the map's curve: it visits
-the angles the map gives for a fixed list of surrogate values (equal-probability
-quantiles of the VAE prior, nearest to the last surrogate seen while locked first),
-dwelling ``dwell_periods`` at each once the servos are there, until O passes the
-threshold. Then control goes back to the DL-MPC loops.
+targets: no K) and, after ``patience`` unlocked periods, scans a list of candidate angle
+sets from a :class:`ScanSource`, dwelling ``dwell_periods`` at each once the servos are
+there, until O passes the threshold. Then control goes back to the DL-MPC's modes, told
+which point locked (:attr:`LockSupervisor.locked_at`).
+
+Two sources: the tracking curve and its mirror twin at ``curve_points`` (the curve
+tracker's :class:`~dlmpc_ros.control.tracking.CurveScan`: points that start a pulse from
+noise at every K on the simulator, and the tracker enters right where the scan locked),
+and, without a curve, the map's angles for a fixed list of surrogate values
+(:class:`MapScan`: equal-probability quantiles of the VAE prior, nearest to the last
+surrogate seen while locked first).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from statistics import NormalDist
+from typing import Protocol
 
 import numpy as np
 
@@ -40,6 +47,10 @@ class AcquisitionConfig:
     travel_periods: int = 20
     """Periods after which a scan point counts as reached even if the servos are not
     there (a point outside the angle limits)."""
+    curve_points: tuple[float, ...] = (-0.25, -0.3, -0.2, -0.15, -0.1, -0.05, 0.0)
+    """Parameters u on the tracking curve (K units) the curve scan visits, each with its
+    mirror twin, in this order (from the simulator: c(-0.25) starts a pulse from noise at
+    every K it was tried at)."""
 
     def __post_init__(self) -> None:
         if not 0 < self.lock_fraction < 1:
@@ -48,6 +59,30 @@ class AcquisitionConfig:
             raise ValueError('patience, dwell_periods, scan_points and travel_periods must '
                              'be >= 1')
         checks.positive(self, 'arrive_tolerance')
+        if not self.curve_points or not np.all(np.isfinite(self.curve_points)):
+            raise ValueError('curve_points must be a non-empty list of finite values')
+
+
+@dataclass(frozen=True)
+class ScanPoint:
+    """A candidate angle set of the scan."""
+
+    angles: np.ndarray = field(repr=False)
+    """(4,) angles [rad]."""
+    branch: int = 0
+    """The tracking curve's branch it lies on (1: the curve, -1: its twin; 0: none)."""
+    estimate: float = float('nan')
+    """Its curve parameter on the tracker's estimate axis (K units; NaN: none)."""
+
+
+class ScanSource(Protocol):
+    """Where the scan goes."""
+
+    def pass_order(self, current: np.ndarray) -> list[ScanPoint]:
+        """The points of a new pass, in order, from the angles (4,) [rad] ``current``."""
+
+    def note_locked(self, surrogate: float) -> None:
+        """A locked period, with the estimator's surrogate for it (NaN: none)."""
 
 
 def scan_surrogates(points: int) -> np.ndarray:
@@ -57,34 +92,55 @@ def scan_surrogates(points: int) -> np.ndarray:
     return np.array([normal.inv_cdf((i + 0.5) / points) for i in range(points)])
 
 
+class MapScan:
+    """The map's angles at ``points`` equal-probability quantiles of the VAE prior, the
+    one nearest the last surrogate seen while locked first."""
+
+    def __init__(self, map_angles: Callable[[float], np.ndarray], points: int) -> None:
+        self.map_angles = map_angles
+        self.surrogates = scan_surrogates(points)
+        self.last_surrogate = 0.0
+
+    def pass_order(self, current: np.ndarray) -> list[ScanPoint]:
+        order = np.argsort(np.abs(self.surrogates - self.last_surrogate))
+        return [ScanPoint(np.asarray(self.map_angles(float(self.surrogates[i])), float))
+                for i in order]
+
+    def note_locked(self, surrogate: float) -> None:
+        if np.isfinite(surrogate):
+            self.last_surrogate = float(surrogate)
+
+
 class LockSupervisor:
     """Per control period: None while the DL-MPC loops are in charge, else the angles
     (4,) [rad] of the scan.
 
     ``threshold`` is the objective O (E/M units) at and above which the laser counts as
-    locked; ``map_angles`` gives the map's angles (4,) for a surrogate value."""
+    locked; ``source`` gives the points of each pass of the scan. In the period O passes
+    the threshold under the scan, :attr:`locked_at` is the point the scan was at or on
+    its way to (else None)."""
 
-    def __init__(self, threshold: float, map_angles: Callable[[float], np.ndarray],
+    def __init__(self, threshold: float, source: ScanSource,
                  config: AcquisitionConfig | None = None) -> None:
         if not threshold > 0:
             raise ValueError(f'lock threshold must be > 0, got {threshold}')
         self.config = config or AcquisitionConfig()
         self.threshold = float(threshold)
-        self.map_angles = map_angles
-        self.surrogates = scan_surrogates(self.config.scan_points)
-        self.last_surrogate = 0.0
+        self.source = source
         self.unlocked = 0
-        self._order: list[int] = []
-        self._target: np.ndarray | None = None
+        self.locked_at: ScanPoint | None = None
+        self._order: list[ScanPoint] = []
+        self._target: ScanPoint | None = None
         self._dwell = self._travel = 0
 
     def locked(self, objective: float) -> bool:
         return bool(np.isfinite(objective) and objective >= self.threshold)
 
     def step(self, objective: float, current: np.ndarray, surrogate: float) -> np.ndarray | None:
+        self.locked_at = None
         if self.locked(objective):
-            if np.isfinite(surrogate):
-                self.last_surrogate = float(surrogate)
+            self.source.note_locked(surrogate)
+            self.locked_at = self._target
             self.unlocked = 0
             self._order, self._target = [], None
             return None
@@ -96,18 +152,16 @@ class LockSupervisor:
     def _scan(self, current: np.ndarray) -> np.ndarray:
         if self._target is not None:
             self._travel += 1
-            gap = wrap_angles(current - self._target)  # pi-periodic
+            gap = wrap_angles(current - self._target.angles)  # pi-periodic
             there = (np.max(np.abs(gap)) <= self.config.arrive_tolerance
                      or self._travel >= self.config.travel_periods)
             if not there:
-                return self._target
+                return self._target.angles
             self._dwell += 1
             if self._dwell < self.config.dwell_periods:
-                return self._target
-        if not self._order:  # a new pass, nearest to the last surrogate seen while locked
-            self._order = [int(i) for i in
-                           np.argsort(np.abs(self.surrogates - self.last_surrogate))]
-        index = self._order.pop(0)
-        self._target = np.asarray(self.map_angles(float(self.surrogates[index])), float)
+                return self._target.angles
+        if not self._order:
+            self._order = self.source.pass_order(current)
+        self._target = self._order.pop(0)
         self._dwell = self._travel = 0
-        return self._target
+        return self._target.angles

@@ -40,12 +40,12 @@ import time
 import numpy as np
 import torch
 
-from dlmpc_ros.control.acquisition import AcquisitionConfig, LockSupervisor
+from dlmpc_ros.control.acquisition import AcquisitionConfig, LockSupervisor, MapScan
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.modes import (AcquireMode, Decision, HoldMode, InnerLoop, Mode,
                                      OuterLoop, Period, PredictionMonitor, TrackMode)
 from dlmpc_ros.control.step import ControlStep, implausible
-from dlmpc_ros.control.tracking import CurveTracker
+from dlmpc_ros.control.tracking import CurveScan, CurveTracker
 from dlmpc_ros.learning.features import features
 from dlmpc_ros.learning.kmap import KMap
 from dlmpc_ros.learning.mprnn import MPRNN
@@ -87,17 +87,21 @@ class DLMPCController:
         lock_fraction = (cfg.acquisition or AcquisitionConfig()).lock_fraction
         self.acquisition: LockSupervisor | None = None
         self.tracker: CurveTracker | None = None
-        if target_objective is not None and cfg.acquisition is not None:
-            self.acquisition = LockSupervisor(lock_fraction * target_objective,
-                                              self.map_angles, cfg.acquisition)
         if target_objective is not None and curve is not None and cfg.tracking is not None:
             grid, angles, expected = curve
             self.tracker = CurveTracker(grid, angles, lock_fraction * target_objective,
                                         cfg.tracking, expected, cfg.limits)
+        if target_objective is not None and cfg.acquisition is not None:
+            source = (MapScan(self.map_angles, cfg.acquisition.scan_points)
+                      if self.tracker is None else
+                      CurveScan(self.tracker, cfg.acquisition.curve_points))
+            self.acquisition = LockSupervisor(lock_fraction * target_objective, source,
+                                              cfg.acquisition)
         self.monitor = PredictionMonitor(mprnn, cfg)
         self.outer = OuterLoop(self.monitor, cfg)
         self.modes: list[Mode] = [
-            *([AcquireMode(self.acquisition)] if self.acquisition is not None else []),
+            *([AcquireMode(self.acquisition, self.tracker)]
+              if self.acquisition is not None else []),
             *([TrackMode(self.tracker)] if self.tracker is not None else []),
             self.outer, InnerLoop(self.map_angles), HoldMode()]
         self._last_mode = ''

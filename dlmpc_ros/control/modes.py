@@ -138,16 +138,23 @@ class PredictionMonitor:
 
 
 class AcquireMode:
-    """Scan the map's curve while the measured O says the laser is off its pulse."""
+    """Scan for a pulse while the measured O says the laser is off it; where the scan
+    locks on a point of the tracking curve, the tracker (if any) enters there."""
 
     name = 'acquire'
 
-    def __init__(self, supervisor: LockSupervisor) -> None:
+    def __init__(self, supervisor: LockSupervisor, tracker: CurveTracker | None = None) -> None:
         self.supervisor = supervisor
+        self.tracker = tracker
 
     def decide(self, period: Period) -> Decision | None:
         scan = self.supervisor.step(period.objective, period.current, period.surrogate)
-        return None if scan is None else Decision(scan, self.name)
+        if scan is not None:
+            return Decision(scan, self.name)
+        point = self.supervisor.locked_at
+        if point is not None and point.branch and self.tracker is not None:
+            self.tracker.enter_at(point.estimate, point.branch, period.objective)
+        return None
 
     def stand_down(self) -> None:
         """Nothing to drop: the scan restarts from its own counters."""

@@ -41,7 +41,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dlmpc_ros.control.acquisition import ScanPoint
 from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.core.angles import wrap_angles
 from dlmpc_ros.core.symmetry import QUARTER_TURN
 from dlmpc_ros.learning.curve import check_curve
 
@@ -194,6 +196,18 @@ class CurveTracker:
         """The curve's own steady O at ``s`` on the current branch (needs ``expected``)."""
         return float(np.interp(self.branch * s, self.grid, self.expected))
 
+    def enter_at(self, estimate: float, branch: int, objective: float) -> None:
+        """Start tracking now at ``estimate`` on ``branch`` (where the acquisition scan just
+        locked, with O = ``objective``), without the entry patience or a cooldown."""
+        if branch not in (1, -1):
+            raise ValueError(f'branch must be 1 or -1, got {branch}')
+        self.active, self._wait = True, 0
+        self.branch = branch
+        self._turn, self._turning_back = [], False
+        self._recentre()
+        self.estimate = float(np.clip(estimate, self.grid[0], self.grid[-1]))
+        self._entry_objective = float(objective) if np.isfinite(objective) else 0.0
+
     def interrupt(self) -> None:
         """Something else took over (the acquisition scan): stop and wait a cooldown."""
         self._survey, self._turn, self._turning_back = [], [], False
@@ -209,6 +223,11 @@ class CurveTracker:
         if not self.active:
             return self._maybe_enter(objective, locked)
         self._age += 1
+        if self._age <= self.config.settle and np.isfinite(objective):
+            self._settling.append(float(objective))
+            if self._age == self.config.settle:  # the guard judges against the settled O too
+                self._entry_objective = max(self._entry_objective,
+                                            float(np.median(self._settling)))
         if self._turn_wait > 0:
             self._turn_wait -= 1
         if self._turn:
@@ -353,6 +372,7 @@ class CurveTracker:
         """Put the estimate back to ``start`` and the dither to its first block."""
         # periods since entry; consecutive periods under the guard and under the survey level
         self._age, self._low, self._short = 0, 0, 0
+        self._settling: list[float] = []  # O measured while settling after entry
         self._survey: list[float] = []  # survey points still to visit
         # the start point on the branch the tracker is on (its twin on the mirror branch)
         self.estimate = self.branch * float(np.clip(self.config.start, self.grid[0],
@@ -389,3 +409,26 @@ class CurveTracker:
                 self._last_move = move
                 self.estimate += self._step * move
                 self.estimate = float(np.clip(self.estimate, self.grid[0], self.grid[-1]))
+
+
+class CurveScan:
+    """The acquisition scan over the tracking curve (a
+    :class:`~dlmpc_ros.control.acquisition.ScanSource`): for each parameter ``u`` of
+    ``points``, the curve's point and its mirror twin (estimate ``-u``), the one nearer
+    the current angles first. The tracker enters where the scan locks."""
+
+    def __init__(self, tracker: CurveTracker, points: tuple[float, ...]) -> None:
+        self.tracker = tracker
+        self.points = tuple(float(u) for u in points)
+
+    def pass_order(self, current: np.ndarray) -> list[ScanPoint]:
+        order = []
+        for u in self.points:
+            on_curve = self.tracker._on_curve(u)
+            pair = [ScanPoint(on_curve, 1, u), ScanPoint(on_curve + QUARTER_TURN, -1, -u)]
+            pair.sort(key=lambda p: float(np.max(np.abs(wrap_angles(p.angles - current)))))
+            order += pair
+        return order
+
+    def note_locked(self, surrogate: float) -> None:
+        """The curve scan does not use the surrogate."""

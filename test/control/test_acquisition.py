@@ -4,9 +4,11 @@ import numpy as np
 import pytest
 import torch
 
-from dlmpc_ros.control.acquisition import AcquisitionConfig, LockSupervisor, scan_surrogates
+from dlmpc_ros.control.acquisition import (AcquisitionConfig, LockSupervisor, MapScan,
+                                           scan_surrogates)
 from dlmpc_ros.control.dlmpc import DLMPCController
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
+from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.learning.kmap import KMap, KMapConfig
 from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
 
@@ -21,8 +23,7 @@ def test_scan_points_are_prior_quantiles():
 
 
 def test_supervisor_waits_then_scans_nearest_first_and_lets_go_on_lock():
-    sup = LockSupervisor(0.1, _map, AcquisitionConfig(patience=2, dwell_periods=2,
-                                                      scan_points=5))
+    sup = LockSupervisor(0.1, MapScan(_map, 5), AcquisitionConfig(patience=2, dwell_periods=2))
     here = np.zeros(4)
     assert sup.step(0.2, here, 0.6) is None        # locked: remembers the surrogate
     assert sup.step(0.01, here, 0.0) is None       # unlocked, patience 1
@@ -34,12 +35,14 @@ def test_supervisor_waits_then_scans_nearest_first_and_lets_go_on_lock():
     second = sup.step(0.01, first, 0.0)            # dwell 2 done: next nearest point
     np.testing.assert_allclose(second, _map(scan_surrogates(5)[2]))
     assert sup.step(0.15, second, 0.0) is None     # locked: the loops take over again
-    assert sup.unlocked == 0
+    assert sup.unlocked == 0 and sup.locked_at is not None
+    np.testing.assert_allclose(sup.locked_at.angles, second)
+    assert sup.step(0.15, second, 0.0) is None and sup.locked_at is None  # only once
 
 
 def test_a_point_the_servos_cannot_reach_is_left_after_travel_periods():
-    sup = LockSupervisor(0.1, _map, AcquisitionConfig(patience=1, dwell_periods=1,
-                                                      scan_points=3, travel_periods=3))
+    sup = LockSupervisor(0.1, MapScan(_map, 3), AcquisitionConfig(patience=1, dwell_periods=1,
+                                                                  travel_periods=3))
     here = np.full(4, 1.0)
     sup.step(0.0, here, 0.0)
     targets = [sup.step(0.0, here, 0.0) for _ in range(5)]
@@ -48,7 +51,8 @@ def test_a_point_the_servos_cannot_reach_is_left_after_travel_periods():
 
 
 @pytest.mark.parametrize('bad', [{'lock_fraction': 0.0}, {'lock_fraction': 1.0},
-                                 {'patience': 0}, {'dwell_periods': 0}, {'scan_points': 0}])
+                                 {'patience': 0}, {'dwell_periods': 0}, {'scan_points': 0},
+                                 {'curve_points': ()}, {'curve_points': (0.1, np.nan)}])
 def test_bad_acquisition_settings_are_rejected(bad):
     with pytest.raises(ValueError):
         AcquisitionConfig(**bad)
@@ -72,3 +76,29 @@ def test_dlmpc_scans_within_the_servo_limits_while_unlocked():
     assert DLMPCController(kmap, mprnn, config).acquisition is None  # no target: no scan
     fresh = ctrl.fresh()
     assert fresh.acquisition is not ctrl.acquisition and fresh.acquisition.unlocked == 0
+
+
+def test_with_a_tracking_curve_the_scan_visits_the_curve_and_its_twin_and_tracking_starts_there():
+    grid = np.linspace(-0.3, 0.3, 61)
+    curve = (grid, np.stack([2 * grid, 0.1 + 0 * grid, -0.2 + grid, 0.3 + 0 * grid], axis=1),
+             np.full(61, 0.2))
+    kmap = KMap(KMapConfig(hidden=16), generator=torch.Generator().manual_seed(0))
+    mprnn = MPRNN(MPRNNConfig(window=2, horizon=4, n_hidden=16, n_latent=8))
+    acquisition = AcquisitionConfig(patience=2, dwell_periods=2, curve_points=(-0.25, 0.0))
+    config = DLMPCConfig(acquisition=acquisition, error_threshold=1e6,
+                         limits=AngleLimits(max_step=10.0))  # servos arrive at once
+    ctrl = DLMPCController(kmap, mprnn, config, target_objective=0.2, curve=curve)
+    first = curve[1][np.searchsorted(grid, -0.25 - 1e-9)]     # c(-0.25)
+    twin = first + np.pi / 2                                   # its twin, estimate 0.25
+    angles = twin + 0.05  # nearer the twin than the curve point: the twin is scanned first
+    targets = []
+    for _ in range(6):  # O = 0.3 / 30 = 0.01: off the pulse; no surrogate: hold, then scan
+        step = ctrl.step(np.r_[0.3, 30.0, angles], None)
+        angles = step.angles
+        targets.append((step.mode, angles.copy()))
+    assert [m for m, _ in targets] == ['hold'] * 2 + ['acquire'] * 4
+    np.testing.assert_allclose(np.cos(2 * (targets[2][1] - twin)), 1.0, atol=1e-9)  # twin
+    np.testing.assert_allclose(np.cos(2 * (targets[4][1] - first)), 1.0, atol=1e-9)  # curve
+    step = ctrl.step(np.r_[6.0, 30.0, angles], 0.0)           # O = 0.2: locked at c(-0.25)
+    assert step.mode == 'track' and ctrl.tracker.active
+    assert ctrl.tracker.branch == 1 and ctrl.tracker.estimate == pytest.approx(-0.25)
