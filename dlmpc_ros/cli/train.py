@@ -1,11 +1,14 @@
 """dlmpc-train: train, measure and ship the models (estimator, map, predictor).
 
-``dlmpc-train all`` runs ``vae``, ``kmap``, ``mprnn``, ``baselines`` and ``curve`` in order
-on the datasets of ``dlmpc-data`` and writes ``models/{vae,kmap,mprnn}.pt``, the baseline
-angle tables ``models/oracle.npz`` (+ ``.json``), the DL-MPC's tracking curve
-``models/track_curve.npz`` (from the baseline tables; ``curve`` alone remakes it from the
-shipped ``oracle.npz`` in a second), ``models/metrics.json``, ``models/figures/`` and
-``models/MODEL_CARD.md``. ``--quick`` trains tiny models for tests.
+``dlmpc-train all`` runs ``vae``, ``kmap``, ``mprnn``, ``baselines``, ``curve`` and
+``response`` in order on the datasets of ``dlmpc-data`` and writes
+``models/{vae,kmap,mprnn}.pt``, the baseline angle tables ``models/oracle.npz`` (+
+``.json``), the DL-MPC's tracking curve ``models/track_curve.npz`` (from the baseline
+tables; ``curve`` alone remakes it from the shipped ``oracle.npz`` in a second), the
+steady-response predictor ``models/response.pt`` (from rotation data of plants drawn from
+the family, made into ``data/response`` first when missing: a quarter of an hour on 2
+cores), ``models/metrics.json``, ``models/figures/`` and ``models/MODEL_CARD.md``.
+``--quick`` trains tiny models for tests.
 ``check-estimator`` measures where the shipped estimator's surrogate gets its information
 (angles or E and M; needs true K, so it is an evaluation) and writes a report to ``--out``.
 """
@@ -19,12 +22,14 @@ import time
 from pathlib import Path
 
 from dlmpc_ros.learning.checkpoint import ModelFileError
+from dlmpc_ros.scaleout import default_workers
 from dlmpc_ros.training.workspace import Workspace
 
-STAGES = ('all', 'vae', 'kmap', 'mprnn', 'baselines', 'curve', 'check-estimator')
+STAGES = ('all', 'vae', 'kmap', 'mprnn', 'baselines', 'curve', 'response', 'check-estimator')
 
 
-def run_stages(stage: str, ws: Workspace, seed: int, quick: bool, show: bool) -> None:
+def run_stages(stage: str, ws: Workspace, seed: int, quick: bool, show: bool,
+               workers: int = 1) -> None:
     """Run ``stage`` (or every stage for ``all``), writing each one's metrics."""
     if stage in ('all', 'vae'):
         from dlmpc_ros.training.stages.vae import train_vae_stage
@@ -58,6 +63,16 @@ def run_stages(stage: str, ws: Workspace, seed: int, quick: bool, show: bool) ->
         ws.write_metrics('curve', metrics)
         print(f"curve: {metrics['points']} points, mean steady O "
               f"{metrics['mean_objective']:.4f}", flush=True)
+    if stage in ('all', 'response'):
+        from dlmpc_ros.training.stages.response import train_response_stage
+        metrics = train_response_stage(ws, seed, quick=quick, show_progress=show,
+                                       workers=workers)
+        ws.write_metrics('response', metrics)
+        plans = metrics['heldout_plans']
+        print(f"response: held-out RMSE of log O {metrics['heldout_rmse_where_kept']:.4f}, "
+              f"plans gain {plans['share_of_best_gain']:.2f} of the best turn, "
+              f"{plans['plans_that_lose_the_pulse']} of {plans['plans']} lose the pulse",
+              flush=True)
 
 
 def check_estimator(ws: Workspace, out: Path, quick: bool, show: bool) -> None:
@@ -84,6 +99,9 @@ def main(argv: list[str] | None = None) -> int:
                    help='check-estimator: where its report goes')
     p.add_argument('--quick', action='store_true', help='tiny training runs for tests')
     p.add_argument('--no-progress', action='store_true')
+    p.add_argument('--workers', type=int, default=default_workers(),
+                   help='response: simulate its data on this many local Dask workers '
+                        '(default: the cores)')
     args = p.parse_args(argv)
     ws = Workspace(args.data_dir, args.models_dir)
     show = not args.no_progress
@@ -92,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.stage == 'check-estimator':
             check_estimator(ws, args.out, args.quick, show)
             return 0
-        run_stages(args.stage, ws, args.seed, args.quick, show)
+        run_stages(args.stage, ws, args.seed, args.quick, show, args.workers)
     except (FileNotFoundError, ModelFileError, ValueError) as err:
         print(f'dlmpc-train: {err}', file=sys.stderr)
         return 2

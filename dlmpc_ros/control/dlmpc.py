@@ -42,6 +42,7 @@ import torch
 
 from dlmpc_ros.control.acquisition import AcquisitionConfig, LockSupervisor, MapScan
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
+from dlmpc_ros.control.rotation_planner import RotationPlanner
 from dlmpc_ros.control.modes import (AcquireMode, Decision, HoldMode, InnerLoop, Mode,
                                      OuterLoop, Period, PredictionMonitor, TrackMode)
 from dlmpc_ros.control.step import ControlStep, implausible
@@ -49,6 +50,7 @@ from dlmpc_ros.control.tracking import CurveScan, CurveTracker
 from dlmpc_ros.learning.features import features
 from dlmpc_ros.learning.kmap import KMap
 from dlmpc_ros.learning.mprnn import MPRNN
+from dlmpc_ros.learning.response import ResponseEnsemble
 
 
 #: Largest |surrogate| taken as an estimate (the VAE's latent means lie within a few
@@ -72,10 +74,12 @@ class DLMPCController:
 
     def __init__(self, kmap: KMap, mprnn: MPRNN, config: DLMPCConfig | None = None,
                  target_objective: float | None = None,
-                 curve: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
+                 curve: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                 response: ResponseEnsemble | None = None) -> None:
         self.config = config or DLMPCConfig()
         self.target_objective = target_objective
         self.curve = curve
+        self.response = response
         self.kmap = kmap
         self.model = mprnn
         self.model.kmap = kmap
@@ -91,6 +95,10 @@ class DLMPCController:
             grid, angles, expected = curve
             self.tracker = CurveTracker(grid, angles, lock_fraction * target_objective,
                                         cfg.tracking, expected, cfg.limits)
+        self.planner: RotationPlanner | None = None
+        if self.tracker is not None and response is not None and cfg.planner is not None:
+            self.planner = RotationPlanner(response, cfg.planner)
+            self.tracker.plan_rotation = self.planner.plan
         if target_objective is not None and cfg.acquisition is not None:
             source = (MapScan(self.map_angles, cfg.acquisition.scan_points)
                       if self.tracker is None else
@@ -109,7 +117,7 @@ class DLMPCController:
     def fresh(self) -> DLMPCController:
         """A controller with the same models and settings and no history."""
         return DLMPCController(self.kmap, self.model, self.config, self.target_objective,
-                               self.curve)
+                               self.curve, self.response)
 
     def map_angles(self, surrogate: float) -> np.ndarray:
         """The map's angles (4,) [rad] for a surrogate value."""
@@ -133,6 +141,8 @@ class DLMPCController:
                                latency_ms=1e3 * (time.perf_counter() - started))
         if surrogate is not None and not abs(surrogate) <= SURROGATE_LIMIT:
             surrogate = None  # no VAE latent is that far out: treat it as no estimate
+        if self.planner is not None:
+            self.planner.observe(measurement[0], measurement[1])
         x = features(torch.as_tensor(measurement, dtype=torch.float32), self.norm)  # (10,)
         error = self.monitor.observe(x)
         period = Period(

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 from dlmpc_ros.control.acquisition import AcquisitionConfig
 from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.rotation_planner import PlannerConfig
 from dlmpc_ros.control.tracking import TrackingConfig
 
 
@@ -49,6 +50,9 @@ class DLMPCConfig:
     """The lock acquisition scan (None: off)."""
     tracking: TrackingConfig | None = field(default_factory=TrackingConfig)
     """Curve tracking once locked (None: off; also off without a tracking curve)."""
+    planner: PlannerConfig | None = field(default_factory=PlannerConfig)
+    """Planning turns of the tracking curve with the steady-response predictor (None:
+    off; also off without tracking or without the predictor)."""
 
     def __post_init__(self) -> None:
         if not 1 <= self.min_iterations <= self.start_iterations <= self.max_iterations:

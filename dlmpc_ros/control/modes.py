@@ -172,7 +172,8 @@ class TrackMode:
         on_curve = self.tracker.step(period.objective, period.current)
         if on_curve is None:
             return None
-        return Decision(on_curve, self.name, surrogate=self.tracker.estimate)
+        return Decision(on_curve, 'plan' if self.tracker.planned else self.name,
+                        surrogate=self.tracker.estimate)
 
     def stand_down(self) -> None:
         self.tracker.interrupt()

@@ -8,9 +8,10 @@ from typing import Protocol
 import numpy as np
 
 #: Modes a controller reports: the DL-MPC loops, holding (no usable input), baselines,
-#: the DL-MPC's lock acquisition scan, its curve tracking, and the genetic algorithm.
+#: the DL-MPC's lock acquisition scan, its curve tracking, the genetic algorithm, and the
+#: DL-MPC's planned turns of its curve (tracking periods in which the planner moved it).
 MODES = ('inner', 'outer', 'hold', 'passive', 'fixed_best', 'esc', 'oracle', 'acquire',
-         'track', 'ga')
+         'track', 'ga', 'plan')
 
 
 @dataclass(frozen=True)

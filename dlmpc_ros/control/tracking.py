@@ -24,7 +24,7 @@ turned by a quarter turn), which is as good at K as the curve is at -K. The trac
 tracks on the curve while its estimate is below ``mirror_margin`` and on the twin while
 it is above ``-mirror_margin``. When the estimate leaves its branch's side it turns to
 the other branch along a path that keeps the pulse (measured on the simulator at every K
-up to |K| = 0.3, O never under 0.73 of its start): over ``ceil(pi/2 / rotation_step)``
+up to |K| = 0.3, O never under 0.73 of its start): over ``ceil(pi/2 / turn_step)``
 periods all four angles turn together by a quarter turn while the curve parameter runs
 from the estimate's point to its mirror image, so the estimate stays where it was. At
 K = 0, where the fiber is isotropic, the turn is an exact symmetry. Turning one way keeps
@@ -32,17 +32,27 @@ the pulse, the other way loses it for |K| > 0.1 on the simulator; a real laser's
 conventions are not known, so the tracker starts with the simulator's way and, when O
 falls under ``turn_guard`` x its O before the turn, turns back the way it came and tries
 the other way the next time.
+
+The curve was made on the nominal cavity; on the laser in front of it the curve is
+turned by a learned rotation theta(u) (all four angles together, a different turn at
+each point of the curve; :mod:`dlmpc_ros.control.rotation`). Every ``plan_every`` dither
+blocks the tracker asks its ``plan_rotation(u, theta)`` (the DL-MPC's rotation planner,
+:mod:`dlmpc_ros.control.rotation_planner`) for a further turn at the current point,
+applies it and starts its dither afresh. What is learned at a point stays there for the
+next time K comes by.
 """
 
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from dlmpc_ros.control.acquisition import ScanPoint
 from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.rotation import CurveRotation
 from dlmpc_ros.core.angles import wrap_angles
 from dlmpc_ros.core.symmetry import QUARTER_TURN
 from dlmpc_ros.learning.curve import check_curve
@@ -100,7 +110,7 @@ class TrackingConfig:
     mirror_margin: float = 0.03
     """How far past K = 0 the estimate must go before the tracker turns to the other
     branch (hysteresis, K units)."""
-    rotation_step: float = 0.2
+    turn_step: float = 0.2
     """Turn of all four angles per period while changing branch [rad] (at most the servo
     speed)."""
     free_turn: float = 0.06
@@ -111,6 +121,12 @@ class TrackingConfig:
     is losing the pulse: the tracker turns back (and turns the other way next time)."""
     turn_cooldown: int = 100
     """Periods after a turn (made or given up) before the next may start."""
+    plan_every: int = 4
+    """Dither blocks between two requests for a turn of the curve (with a planner)."""
+    rotation_knots: int = 13
+    """Points along the curve that carry the learned rotation."""
+    rotation_limit: float = 1.0
+    """Largest learned rotation [rad]."""
 
     def __post_init__(self) -> None:
         if not (self.dither > 0 and 0 < self.min_step <= self.step <= self.max_step
@@ -129,11 +145,14 @@ class TrackingConfig:
                 or min(self.survey_patience, self.survey_dwell, self.survey_cooldown) < 1:
             raise ValueError('survey_ratio must be in (0, 1], survey_spacing > 0 and the '
                              'survey periods >= 1')
-        if not (self.mirror_margin >= 0 and 0 < self.rotation_step <= QUARTER_TURN
+        if not (self.mirror_margin >= 0 and 0 < self.turn_step <= QUARTER_TURN
                 and self.free_turn >= 0 and 0 < self.turn_guard <= 1
                 and self.turn_cooldown >= 1):
-            raise ValueError('need mirror_margin >= 0, 0 < rotation_step <= pi/2, '
+            raise ValueError('need mirror_margin >= 0, 0 < turn_step <= pi/2, '
                              'free_turn >= 0, 0 < turn_guard <= 1 and turn_cooldown >= 1')
+        if not (self.plan_every >= 1 and self.rotation_knots >= 2 and self.rotation_limit > 0):
+            raise ValueError('need plan_every >= 1, rotation_knots >= 2 and '
+                             'rotation_limit > 0')
 
 
 class CurveTracker:
@@ -176,6 +195,12 @@ class CurveTracker:
         self._wait = 0            # cooldown periods left
         self._cooldown = self.config.cooldown
         self._blocks: deque[tuple[float, float]] = deque(maxlen=3)  # (sign, O)
+        self.rotation = CurveRotation(self.grid[0], self.grid[-1],
+                                      self.config.rotation_knots, self.config.rotation_limit)
+        #: ``(u, theta) -> further turn [rad]`` asked every ``plan_every`` blocks (None:
+        #: the curve is never turned)
+        self.plan_rotation: Callable[[float, float], float] | None = None
+        self.planned = 0.0
         self._survey_wait = 0
         self._survey_seen: list[tuple[float, float]] = []  # (point, O)
         self._dwell = 0
@@ -183,14 +208,21 @@ class CurveTracker:
 
     def curve(self, s: float) -> np.ndarray:
         """The angles (4,) [rad] at parameter ``s`` (clipped to the grid) on the branch the
-        tracker is on: the curve, or its twin ``c(-s) + pi/2``."""
+        tracker is on: the curve, or its twin ``c(-s) + pi/2``, turned by the learned
+        rotation."""
         on_curve = self._on_curve(self.branch * s)
         return on_curve if self.branch == 1 else on_curve + QUARTER_TURN
 
     def _on_curve(self, u: float) -> np.ndarray:
-        """The curve's own angles (4,) [rad] at ``u`` (clipped to the grid)."""
+        """The curve's angles (4,) [rad] at ``u`` (clipped to the grid), turned by the
+        rotation learned there."""
         u = float(np.clip(u, self.grid[0], self.grid[-1]))
-        return np.array([np.interp(u, self.grid, self.angles[:, j]) for j in range(4)])
+        return np.array([np.interp(u, self.grid, self.angles[:, j]) for j in range(4)]) \
+            + self.rotation(u)
+
+    def _command(self) -> np.ndarray:
+        """This period's angles: the point at the estimate, with the dither."""
+        return self.curve(self.estimate + self._sign * self.config.dither)
 
     def expected_objective(self, s: float) -> float:
         """The curve's own steady O at ``s`` on the current branch (needs ``expected``)."""
@@ -220,6 +252,7 @@ class CurveTracker:
         """This period's measured O and the angles (4,) [rad] it ran with -> the curve's
         angles for the next period, or None. Without ``current`` the branch never changes."""
         locked = bool(np.isfinite(objective) and objective >= self.threshold)
+        self.planned = 0.0  # the planner's turn this period [rad]
         if not self.active:
             return self._maybe_enter(objective, locked)
         self._age += 1
@@ -258,7 +291,7 @@ class CurveTracker:
                     self._turn_from = np.asarray(current, float)
                     self._turn_objective = float(objective)
                     return self._turning(float(objective))
-        return self.curve(self.estimate + self._sign * self.config.dither)
+        return self._command()
 
     def _wants_other_branch(self) -> bool:
         """Whether the estimate has gone past the margin onto the other branch's side (and
@@ -277,7 +310,7 @@ class CurveTracker:
         turns back and forth do not wind the servos up to their ends); further out it
         turns the way that kept the pulse last."""
         u = self.branch * float(np.clip(self.estimate, self.grid[0], self.grid[-1]))
-        steps = int(np.ceil(QUARTER_TURN / self.config.rotation_step - 1e-9))
+        steps = int(np.ceil(QUARTER_TURN / self.config.turn_step - 1e-9))
         start = self._on_curve(u)
         fractions = (np.arange(steps) + 1) / steps
         middle = 0.5 * (self.limits.low + self.limits.high)
@@ -315,9 +348,7 @@ class CurveTracker:
                 self.branch = -self.branch
                 self.branch_changes += 1
             self._turn_wait = cfg.turn_cooldown
-            self._blocks.clear()
-            self._sign, self._in_block = 1.0, 0
-            self._step, self._last_move = cfg.step, 0.0  # the Rprop step starts afresh
+            self._restart_dither()
             self._age = min(self._age, cfg.settle)  # let the guard settle again
         return command
 
@@ -349,7 +380,7 @@ class CurveTracker:
                 self._recentre()
                 self.estimate = best
                 self._survey_wait = self.config.survey_cooldown
-                return self.curve(self.estimate + self.config.dither)
+                return self._command()
         return self.curve(self._survey[0])
 
     def _maybe_enter(self, objective: float, locked: bool) -> np.ndarray | None:
@@ -366,7 +397,7 @@ class CurveTracker:
         self.active = True
         self._entry_objective = float(np.median(self._recent))
         self._recentre()
-        return self.curve(self.estimate + self.config.dither)
+        return self._command()
 
     def _recentre(self) -> None:
         """Put the estimate back to ``start`` and the dither to its first block."""
@@ -377,8 +408,14 @@ class CurveTracker:
         # the start point on the branch the tracker is on (its twin on the mirror branch)
         self.estimate = self.branch * float(np.clip(self.config.start, self.grid[0],
                                                     self.grid[-1]))
+        self._restart_dither()
+
+    def _restart_dither(self) -> None:
+        """Start the dither afresh: first block, no blocks recorded, first Rprop step (the
+        learned rotation stays)."""
         self._sign, self._in_block = 1.0, 0  # sign of the dither in the current block
         self._blocks.clear()
+        self._block_count = 0                # blocks closed since (for the plans)
         self._step, self._last_move = self.config.step, 0.0  # Rprop step and last sign
 
     def _leave(self, failed: bool) -> None:
@@ -391,24 +428,41 @@ class CurveTracker:
             self._cooldown = min(2 * self._cooldown, 64 * self.config.cooldown)
 
     def _end_block(self, objective: float) -> None:
-        """Close a dither half: compare it with its neighbours and move the estimate."""
+        """Close a dither half: compare it with its neighbours and move the estimate; every
+        ``plan_every`` blocks, turn the curve at the estimate's point by the planner's
+        turn (and start the dither afresh)."""
+        cfg = self.config
         self._blocks.append((self._sign, objective))
         self._in_block = 0
+        self._block_count += 1
         self._sign = -self._sign
-        if len(self._blocks) == 3 and self._age > self.config.settle:
+        if len(self._blocks) == 3 and self._age > cfg.settle:
             (_, before), (sign, middle), (_, after) = self._blocks
             difference = sign * (middle - 0.5 * (before + after))   # O(+) - O(-)
-            scale = max(abs(middle), 1e-12)
-            if abs(difference) > self.config.deadband * scale:
-                move = float(np.sign(difference))
-                cfg = self.config
-                if self._last_move:
-                    factor = cfg.grow if move == self._last_move else cfg.shrink
-                    self._step = float(np.clip(self._step * factor, cfg.min_step,
-                                               cfg.max_step))
-                self._last_move = move
-                self.estimate += self._step * move
-                self.estimate = float(np.clip(self.estimate, self.grid[0], self.grid[-1]))
+            if abs(difference) > cfg.deadband * max(abs(middle), 1e-12):
+                self._step, self._last_move, move = _rprop(
+                    difference, self._step, self._last_move, cfg.grow, cfg.shrink,
+                    cfg.min_step, cfg.max_step)
+                self.estimate = float(np.clip(self.estimate + move, self.grid[0],
+                                              self.grid[-1]))
+        if (self.plan_rotation is not None and self._age > cfg.settle
+                and self._block_count % cfg.plan_every == 0):
+            u = self.branch * self.estimate
+            turn = self.plan_rotation(u, self.rotation(u))
+            if turn:
+                self.rotation.move(u, turn)
+                self.planned = float(turn)
+                self._blocks.clear()  # O moves with the turn: compare blocks after it
+
+
+def _rprop(slope: float, step: float, last: float, grow: float, shrink: float,
+           low: float, high: float) -> tuple[float, float, float]:
+    """One Rprop move up the sign of ``slope``: ``(new step, its sign, the move)``; the
+    step grows while the sign repeats, shrinks when it flips, within [low, high]."""
+    sign = float(np.sign(slope))
+    if last:
+        step = float(np.clip(step * (grow if sign == last else shrink), low, high))
+    return step, sign, step * sign
 
 
 class CurveScan:

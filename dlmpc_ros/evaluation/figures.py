@@ -72,9 +72,10 @@ def plot_tracking(records: dict[str, RunRecord], envelope: dict[str, np.ndarray]
 
 
 def _tracking(record: RunRecord) -> np.ndarray:
-    """(periods,) True where the DL-MPC tracked the curve: its status surrogate there is
-    the curve estimate (K's units), not the VAE surrogate."""
-    return record.mode == MODES.index('track')
+    """(periods,) True where the DL-MPC tracked the curve (and where its planner turned
+    it): its status surrogate there is the curve estimate (K's units), not the VAE
+    surrogate."""
+    return np.isin(record.mode, [MODES.index('track'), MODES.index('plan')])
 
 
 def surrogate_correlation(record: RunRecord, tracking: bool = False) -> float | None:

@@ -15,7 +15,8 @@ import torch
 
 SCHEMA_VERSION = 1
 #: Model kinds and what they are called in messages.
-KINDS = {'vae': 'VAE estimator', 'kmap': 'K-to-angles map', 'mprnn': 'MP-RNN'}
+KINDS = {'vae': 'VAE estimator', 'kmap': 'K-to-angles map', 'mprnn': 'MP-RNN',
+         'response': 'steady-response predictor'}
 
 
 class ModelFileError(RuntimeError):

@@ -22,7 +22,8 @@ EXTRA_ROWS = (('kmap', 'oracle_ratio_from_median_state',
 def _data_meta(ws: Workspace) -> dict:
     out = {}
     for name, directory in (('sweep', ws.sweep), ('trajectories', ws.trajectories),
-                            ('trajectories_extra', ws.extra_trajectories)):
+                            ('trajectories_extra', ws.extra_trajectories),
+                            ('response', ws.response)):
         meta = directory / 'metadata.json'
         if meta.exists():
             out[name] = json.loads(meta.read_text())
@@ -32,10 +33,28 @@ def _data_meta(ws: Workspace) -> dict:
     return out
 
 
+#: How each dataset's line of the card begins (a dataset absent from the data directory
+#: keeps its line from the card as it was: a stage trained alone keeps the others' notes).
+DATA_LINES = {'sweep': '- steady-state sweep:', 'oracle': '- oracle envelope:',
+              'trajectories': '- trajectories:',
+              'trajectories_extra': '- trajectories_extra', 'response': '- response data:'}
+
+
+def _previous_data_lines(path: Path) -> dict[str, str]:
+    """The dataset lines of an existing card, by dataset."""
+    if not path.exists():
+        return {}
+    lines = path.read_text().splitlines()
+    return {name: line for name, start in DATA_LINES.items() for line in lines
+            if line.startswith(start)}
+
+
 def write_model_card(ws: Workspace) -> Path:
     """Write ``models/MODEL_CARD.md`` from ``models/metrics.json`` and the datasets' notes."""
     metrics = json.loads(ws.metrics.read_text()) if ws.metrics.exists() else {}
     data = _data_meta(ws)
+    path = ws.models_dir / 'MODEL_CARD.md'
+    previous = _previous_data_lines(path)
     lines = ['# dlmpc_ros model card', '',
              'Made by `dlmpc-data all` then `dlmpc-train all` (seed 0) on a 2-core CPU '
              'machine; `make models` runs both. Files load with `torch.load(weights_only=True)` '
@@ -62,6 +81,17 @@ def write_model_card(ws: Workspace) -> Path:
         t = data['trajectories_extra']
         lines.append('- trajectories_extra (training lanes for the MP-RNN only): settings '
                      f"{json.dumps(t['settings']['trajectories'])}")
+    if 'response' in data:
+        r = data['response']
+        cfg = r['settings']['response']
+        lines.append(f"- response data: {r.get('samples')} steady states of "
+                     f"{cfg['plants']} plants of the family (seeds {cfg['first_seed']} to "
+                     f"{cfg['first_seed'] + cfg['plants'] - 1}), the curve turned both ways at "
+                     f"K {cfg['k_values']}, fingerprint {r.get('fingerprint')}; settings "
+                     f"{json.dumps(cfg)}")
+    made = {name for name, start in DATA_LINES.items()
+            if any(line.startswith(start) for line in lines)}
+    lines += [line for name, line in previous.items() if name not in made]
     lines += ['', '## Models and measurements', '', '| model | figure | measured | target |',
               '|---|---|---|---|']
     for stage, (key, target, what) in TARGETS.items():
@@ -70,6 +100,15 @@ def write_model_card(ws: Workspace) -> Path:
     for stage, key, what in EXTRA_ROWS:
         if key in metrics.get(stage, {}):
             lines.append(f'| {stage} | {what} | {metrics[stage][key]:.3f} | |')
+    if 'response' in metrics:
+        r = metrics['response']
+        lines.append(f"| response | RMSE of the predicted change of log O, plants held out of its data "
+                     f"(pulse kept) | {r['heldout_rmse_where_kept']:.3f} | |")
+        lines.append(f"| response | one-step plans on those plants: share of the best "
+                     f"turn's gain within {r['fit']['plan_radius']} rad "
+                     f"({r['heldout_plans']['plans_that_lose_the_pulse']} of "
+                     f"{r['heldout_plans']['plans']} lose the pulse) | "
+                     f"{r['heldout_plans']['share_of_best_gain']:.3f} | |")
     if 'mprnn' in metrics:
         m = metrics['mprnn']
         ratio = m['rmse_O_model'][-1] / m['rmse_O_persistence'][-1]
@@ -94,6 +133,5 @@ def write_model_card(ws: Workspace) -> Path:
     lines += ['', '## Full metrics', '', '```json', json.dumps(
         {k: {kk: vv for kk, vv in v.items() if not kk.startswith('per_k')}
          for k, v in metrics.items()}, indent=1, default=float)[:20000], '```', '']
-    path = ws.models_dir / 'MODEL_CARD.md'
     path.write_text('\n'.join(lines))
     return path

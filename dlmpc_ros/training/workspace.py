@@ -35,6 +35,11 @@ class Workspace:
         """More training lanes for the predictor only (see ``dlmpc-data trajectories``)."""
         return self.data_dir / 'trajectories_extra'
 
+    @property
+    def response(self) -> Path:
+        """The rotation data of the plant family (``dlmpc-train response``)."""
+        return self.data_dir / 'response'
+
     def model(self, kind: str) -> Path:
         return self.models_dir / f'{kind}.pt'
 

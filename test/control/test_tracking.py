@@ -221,7 +221,7 @@ def test_a_turn_stays_inside_the_servo_limits():
                                  dict(guard=1.5), dict(settle=-1), dict(cooldown=0),
                                  dict(survey_ratio=0), dict(survey_spacing=0),
                                  dict(survey_dwell=0), dict(mirror_margin=-0.1),
-                                 dict(rotation_step=0), dict(rotation_step=2.0),
+                                 dict(turn_step=0), dict(turn_step=2.0),
                                  dict(turn_guard=0), dict(turn_cooldown=0)])
 def test_bad_tracking_settings_are_rejected(bad):
     with pytest.raises(ValueError):

@@ -1,0 +1,121 @@
+"""The DL-MPC's model-predictive step on the laser in front of it: plan the curve's rotation.
+
+While the curve tracker holds the laser on its curve, every ``every_blocks`` dither
+blocks the planner asks the steady-response predictor (:mod:`dlmpc_ros.learning.response`)
+what further turns ``delta`` of the curve at the current point would do to the settled O,
+given the rotation there and the E and M measured (averaged over the last
+``measurements`` periods), and picks the turn within the trust radius that maximizes the
+predicted gain less ``spread_penalty`` times the ensemble's spread (a plan the members
+disagree on leaves the data they were trained on). It moves only when that beats
+``min_gain``; else it holds. After each move it compares the O measured once the laser
+settled with the O before, against the prediction, and learns a correction of the
+predictor for this laser online (:class:`OnlineCorrection`: a least-squares line in
+``delta``, fit to the run's own moves, that the next plans add): the predictor is the
+prior, the laser corrects it. Planning costs one small forward pass of the ensemble.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from dlmpc_ros.core import checks
+
+if TYPE_CHECKING:  # torch-based: the caller loads it
+    from dlmpc_ros.learning.response import ResponseEnsemble
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Settings of the rotation planner (times in dither blocks or control periods)."""
+
+    every_blocks: int = 4
+    """Dither blocks between plans (the laser settles and the estimate moves between)."""
+    radius: float = 0.1
+    """Trust radius: the largest turn of one plan [rad]."""
+    candidates: int = 21
+    """Turns tried per plan, evenly over [-radius, radius]."""
+    spread_penalty: float = 1.0
+    """Weight of the ensemble's spread against its mean predicted gain."""
+    min_gain: float = 0.002
+    """Smallest predicted gain of log O that is worth a move."""
+    measurements: int = 3
+    """Recent periods whose log E and log M are averaged as the predictor's input."""
+    online: bool = True
+    """Correct the predictor online from the run's own moves."""
+    memory: int = 30
+    """Recent moves the online correction is fit to."""
+
+    def __post_init__(self) -> None:
+        checks.counts(self, 'every_blocks', 'measurements', 'memory')
+        checks.counts(self, 'candidates', minimum=3)
+        checks.positive(self, 'radius')
+        checks.non_negative(self, 'spread_penalty')
+        checks.non_negative(self, 'min_gain')
+
+
+class OnlineCorrection:
+    """What the predictor got wrong on this laser: a line ``a + b * delta`` fit (ridge
+    least squares) to the errors of the last ``memory`` moves, added to later plans."""
+
+    def __init__(self, memory: int, ridge: float = 1.0) -> None:
+        self.moves: deque[tuple[float, float]] = deque(maxlen=memory)  # (delta, error)
+        self.ridge = ridge
+        self.coefficients = np.zeros(2)
+
+    def add(self, delta: float, error: float) -> None:
+        """One move's turn and its error (measured minus predicted change of log O)."""
+        self.moves.append((float(delta), float(error)))
+        d, e = np.array(self.moves).T
+        x = np.stack([np.ones_like(d), d / 0.1], axis=1)  # delta in units of 0.1 rad
+        self.coefficients = np.linalg.solve(x.T @ x + self.ridge * np.eye(2), x.T @ e)
+
+    def __call__(self, delta: np.ndarray) -> np.ndarray:
+        return self.coefficients[0] + self.coefficients[1] * np.asarray(delta) / 0.1
+
+
+class RotationPlanner:
+    """Plans turns of the tracking curve with the steady-response predictor."""
+
+    def __init__(self, model: ResponseEnsemble, config: PlannerConfig | None = None) -> None:
+        self.model = model
+        self.config = config or PlannerConfig()
+        self.recent: deque[tuple[float, float]] = deque(maxlen=self.config.measurements)
+        self.correction = OnlineCorrection(self.config.memory)
+        self.moves = 0
+        self.last_prediction = float('nan')  # predicted change of log O of the last move
+        self._pending: tuple[float, float, float] | None = None  # (delta, predicted, log O)
+
+    def observe(self, energy: float, kurtosis: float) -> None:
+        """One period's measured E and M (a state with no pulse is not averaged in)."""
+        if np.isfinite(energy) and np.isfinite(kurtosis) and energy > 0 and kurtosis > 0:
+            self.recent.append((float(np.log(energy)), float(np.log(kurtosis))))
+
+    def plan(self, u: float, theta: float) -> float:
+        """The turn [rad] to add to the rotation at curve point ``u`` (0: hold)."""
+        if not self.recent:
+            return 0.0
+        log_e, log_m = np.mean(np.array(self.recent), axis=0)
+        log_o = log_e - log_m
+        if self._pending is not None and self.config.online:  # how did the last move do?
+            delta, predicted, before = self._pending
+            self.correction.add(delta, (log_o - before) - predicted)
+        self._pending = None
+        cfg = self.config
+        deltas = np.linspace(-cfg.radius, cfg.radius, cfg.candidates)
+        mean, spread = self.model.predict(u, theta, float(np.exp(log_e)), float(np.exp(log_m)),
+                                          deltas)
+        if cfg.online:
+            mean = mean + self.correction(deltas) - self.correction(np.zeros(1))
+        score = mean - cfg.spread_penalty * spread
+        best = int(np.argmax(score))
+        if not score[best] > max(cfg.min_gain, score[cfg.candidates // 2]):
+            return 0.0
+        self.moves += 1
+        self.last_prediction = float(mean[best])
+        self._pending = (float(deltas[best]), float(mean[best]), log_o)
+        self.recent.clear()  # the next plan reads the state after this move
+        return float(deltas[best])

@@ -1,0 +1,106 @@
+"""The DL-MPC's steady-response predictor: what turning the tracking curve does to O.
+
+On a laser that is not the nominal cavity the best angles are mostly the tracking curve
+turned by an angle theta (:mod:`dlmpc_ros.control.rotation`), and which way and how far
+shows in what the laser measures. The predictor reads, at the curve point ``u`` the
+tracker is at, the rotation ``theta`` it runs with and the measured ``E`` and ``M``, and
+predicts the change of log O a further turn ``delta`` would bring once the laser has
+settled: a predictor of the steady response, not of every period. It is an ensemble of
+small networks trained on bootstrap samples; their spread says where a plan leaves the
+data (the planner, :mod:`dlmpc_ros.control.rotation_planner`, penalizes it). It is
+trained on plants drawn from the family (domain randomization) by ``dlmpc-train
+response`` (:mod:`dlmpc_ros.training.stages.response`) and never reads K or a plant's
+parameters.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from dlmpc_ros.core import checks
+from dlmpc_ros.learning.checkpoint import load_model
+from dlmpc_ros.learning.seeding import reset_linear_layers
+
+#: The predictor's inputs, in order: curve parameter (K units), rotation [rad], log E,
+#: log M, the further turn [rad].
+FEATURES = ('u', 'theta', 'log_E', 'log_M', 'delta')
+#: Lowest predicted log-ratio: a turn that loses the pulse (O falls to a tenth or less).
+LOST = float(np.log(0.1))
+
+
+@dataclass(frozen=True)
+class ResponseModelConfig:
+    """Sizes and input scaling of the predictor (stored in its file)."""
+
+    members: int = 5
+    """Networks in the ensemble."""
+    hidden: int = 64
+    """Units of every hidden layer."""
+    layers: int = 3
+    """Linear layers per network (tanh between them)."""
+    mean: list = field(default_factory=lambda: [0.0] * len(FEATURES))
+    """Mean of each input on the training data."""
+    std: list = field(default_factory=lambda: [1.0] * len(FEATURES))
+    """Standard deviation of each input on the training data (> 0)."""
+
+    def __post_init__(self) -> None:
+        checks.counts(self, 'members', 'hidden', 'layers')
+        if len(self.mean) != len(FEATURES) or len(self.std) != len(FEATURES) \
+                or not all(np.isfinite(self.mean)) or not all(s > 0 for s in self.std):
+            raise ValueError(f'ResponseModelConfig needs {len(FEATURES)} finite means and '
+                             'positive standard deviations')
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+class ResponseEnsemble(nn.Module):
+    """Inputs (..., 5) of :data:`FEATURES` -> predicted change of log O (..., members).
+
+    ``generator`` (optional) draws the initial weights (PyTorch's default scheme)."""
+
+    def __init__(self, config: ResponseModelConfig,
+                 generator: torch.Generator | None = None) -> None:
+        super().__init__()
+        self.config = config
+        self.members = nn.ModuleList(_network(config) for _ in range(config.members))
+        self.register_buffer('mean', torch.tensor(config.mean, dtype=torch.float32))
+        self.register_buffer('std', torch.tensor(config.std, dtype=torch.float32))
+        if generator is not None:
+            reset_linear_layers(self, generator)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        z = (x - self.mean) / self.std
+        return torch.cat([member(z) for member in self.members], dim=-1)
+
+    @torch.no_grad()
+    def predict(self, u: float, theta: float, energy: float, kurtosis: float,
+                delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and spread over the members (each (n,)) of the change of log O after the
+        further turns ``delta`` (n,) [rad], from the state ``(u, theta, E, M)``."""
+        delta = np.asarray(delta, float)
+        x = np.empty((delta.size, len(FEATURES)), np.float32)
+        x[:, :4] = (u, theta, np.log(energy), np.log(kurtosis))
+        x[:, 4] = delta
+        out = self(torch.from_numpy(x)).numpy()
+        return out.mean(axis=1), out.std(axis=1)
+
+
+def _network(config: ResponseModelConfig) -> nn.Sequential:
+    sizes = [len(FEATURES)] + [config.hidden] * (config.layers - 1)
+    blocks: list[nn.Module] = []
+    for a, b in zip(sizes[:-1], sizes[1:]):
+        blocks += [nn.Linear(a, b), nn.Tanh()]
+    return nn.Sequential(*blocks, nn.Linear(sizes[-1], 1))
+
+
+def load_response(path: str | Path) -> tuple[ResponseEnsemble, dict]:
+    """The steady-response predictor and its file's payload; raises
+    :class:`~dlmpc_ros.learning.checkpoint.ModelFileError`."""
+    return load_model(path, 'response',
+                      lambda config: ResponseEnsemble(ResponseModelConfig(**config)))

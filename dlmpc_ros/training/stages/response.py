@@ -1,0 +1,182 @@
+"""``dlmpc-train response``: the DL-MPC's steady-response predictor
+(:mod:`dlmpc_ros.learning.response`) from the rotation data of the plant family
+(:mod:`dlmpc_ros.training.response`, made here first if ``data/response`` is missing).
+
+Training pairs: along each rotation profile (one plant, K and curve point, the rotation
+stepped both ways from 0), every state that holds a pulse (O at least ``pulse_fraction``
+of the profile's best) and every other rotation within ``trust`` of it give the inputs
+``(u, theta_a, log E_a, log M_a, theta_b - theta_a)`` and the target ``log(O_b / O_a)``,
+or :data:`~dlmpc_ros.learning.response.LOST` where the pulse is lost on the way. Each
+member of the ensemble is fit to its own bootstrap sample of the training plants' pairs;
+a fifth of the plants are held out, and the figures are measured on them: the RMSE, and
+what one-step plans chosen by the predictor (mean minus ``spread_penalty`` times the
+members' spread, within the trust radius) gain against the best turn within it.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import torch
+
+from dlmpc_ros.core import checks
+from dlmpc_ros.learning.checkpoint import save_checkpoint
+from dlmpc_ros.learning.curve import FILE_NAME, load_curve
+from dlmpc_ros.learning.fit import fit
+from dlmpc_ros.learning.response import (FEATURES, LOST, ResponseEnsemble,
+                                         ResponseModelConfig)
+from dlmpc_ros.training import shards
+from dlmpc_ros.training.response import ResponseConfig, generate_response
+from dlmpc_ros.training.workspace import Workspace
+
+
+@dataclass(frozen=True)
+class PairRule:
+    """Which pairs of states along a profile train the predictor."""
+
+    trust: float = 0.2
+    """Largest further turn [rad]."""
+    pulse_fraction: float = 0.3
+    """A state holds a pulse when its O is at least this fraction of its profile's best."""
+
+    def __post_init__(self) -> None:
+        checks.positive(self, 'trust')
+        checks.fraction(self, 'pulse_fraction')
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """How the ensemble is fit and judged."""
+
+    members: int = 5
+    hidden: int = 64
+    epochs: int = 12
+    batch: int = 1024
+    lr: float = 2e-3
+    held_out: float = 0.2
+    """Fraction of the plants held out for the figures."""
+    plan_radius: float = 0.1
+    """Trust radius of the one-step plans the figures judge [rad]."""
+    spread_penalty: float = 1.0
+    """Weight of the members' spread in those plans."""
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def profiles(data: dict[str, np.ndarray]) -> list[dict[str, np.ndarray]]:
+    """The rotation profiles of the data: per (plant, K, u), the rows sorted by theta."""
+    keys = np.stack([data['plant'], data['K'], data['u']], axis=1)
+    _, group = np.unique(keys, axis=0, return_inverse=True)
+    out = []
+    for g in range(int(group.max()) + 1):
+        rows = np.flatnonzero(group.ravel() == g)
+        rows = rows[np.argsort(data['theta'][rows])]
+        out.append({k: v[rows] for k, v in data.items()})
+    return out
+
+
+def profile_pairs(profile: dict[str, np.ndarray], rule: PairRule
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Inputs (m, 5) of :data:`FEATURES` and targets (m,) of one profile's pairs."""
+    theta, energy, kurtosis = profile['theta'], profile['E'], profile['M']
+    objective = np.where(np.isfinite(energy / kurtosis), energy / kurtosis, 0.0)
+    pulse = objective >= rule.pulse_fraction * max(objective.max(), 1e-12)
+    x, y = [], []
+    for a in np.flatnonzero(pulse):
+        near = np.flatnonzero(np.abs(theta - theta[a]) <= rule.trust + 1e-9)
+        for b in near:
+            path = slice(min(a, b), max(a, b) + 1)
+            ratio = (np.log(objective[b] / objective[a]) if pulse[path].all() else LOST)
+            x.append((profile['u'][a], theta[a], np.log(energy[a]), np.log(kurtosis[a]),
+                      theta[b] - theta[a]))
+            y.append(max(ratio, LOST))
+    return np.asarray(x, float).reshape(-1, len(FEATURES)), np.asarray(y, float)
+
+
+def plan_figures(model: ResponseEnsemble, held_out: list[dict[str, np.ndarray]],
+                 rule: PairRule, settings: FitSettings) -> dict:
+    """One-step plans from every pulse state of the held-out profiles: the predictor's
+    choice within ``plan_radius`` against the best turn there and against holding."""
+    chosen, best, lost = [], [], 0
+    for profile in held_out:
+        x, y = profile_pairs(profile, PairRule(settings.plan_radius, rule.pulse_fraction))
+        starts = np.unique(x[:, :4], axis=0)
+        for state in starts:
+            rows = np.flatnonzero(np.all(x[:, :4] == state, axis=1))
+            mean, spread = model.predict(state[0], state[1], np.exp(state[2]),
+                                         np.exp(state[3]), x[rows, 4])
+            pick = rows[int(np.argmax(mean - settings.spread_penalty * spread))]
+            chosen.append(y[pick])
+            best.append(y[rows].max())
+            lost += int(y[pick] <= LOST)
+    chosen, best = np.array(chosen), np.array(best)
+    return {'plans': int(chosen.size),
+            'mean_gain_chosen': float(np.mean(np.exp(chosen) - 1)),
+            'mean_gain_best': float(np.mean(np.exp(best) - 1)),
+            'share_of_best_gain': float(np.sum(np.exp(chosen) - 1)
+                                        / max(np.sum(np.exp(best) - 1), 1e-12)),
+            'plans_that_lose_the_pulse': lost}
+
+
+def train_response_stage(ws: Workspace, seed: int, quick: bool = False,
+                         show_progress: bool = True, workers: int = 1) -> dict:
+    """Make the data if needed, fit the ensemble, write ``models/response.pt``; returns
+    the stage's metrics."""
+    started = time.monotonic()
+    grid, angles, _ = load_curve(ws.models_dir / FILE_NAME)
+    data_cfg = (ResponseConfig(plants=6, k_values=(-0.25, -0.1), offsets=(0.0,), steps=8,
+                               settle=150, plants_per_task=3)
+                if quick else ResponseConfig())
+    meta = generate_response(ws.response, data_cfg, grid, angles, show_progress, workers)
+    data = shards.load_dataset(ws.response)
+    rule, settings = PairRule(), FitSettings(epochs=2 if quick else FitSettings.epochs)
+    plants = np.unique(data['plant'])
+    n_held = max(1, int(round(settings.held_out * plants.size)))
+    held = set(plants[-n_held:].tolist())
+    train_x, train_y, held_profiles = [], [], []
+    for profile in profiles(data):
+        if int(profile['plant'][0]) in held:
+            held_profiles.append(profile)
+        else:
+            x, y = profile_pairs(profile, rule)
+            train_x.append(x)
+            train_y.append(y)
+    x, y = np.concatenate(train_x), np.concatenate(train_y)
+    config = ResponseModelConfig(members=settings.members, hidden=settings.hidden,
+                                 mean=x.mean(0).tolist(),
+                                 std=np.maximum(x.std(0), 1e-6).tolist())
+    generator = torch.Generator().manual_seed(seed)
+    model = ResponseEnsemble(config, generator)
+    samples = torch.as_tensor(np.c_[x, y], dtype=torch.float32)
+    histories = []
+    for m, member in enumerate(model.members):
+        pick = torch.randint(samples.shape[0], (samples.shape[0],), generator=generator)
+
+        def loss_fn(batch: torch.Tensor, _g, member=member) -> tuple[torch.Tensor, dict]:
+            z = (batch[:, :-1] - model.mean) / model.std
+            return torch.mean((member(z)[:, 0] - batch[:, -1]) ** 2), {}
+        histories.append(fit(member, loss_fn, samples[pick], settings.epochs,
+                             settings.batch, settings.lr, seed + m, cosine=True,
+                             desc=f'response member {m + 1}', show_progress=show_progress))
+    model.eval()
+    held_x, held_y = zip(*(profile_pairs(p, rule) for p in held_profiles))
+    hx, hy = np.concatenate(held_x), np.concatenate(held_y)
+    with torch.no_grad():
+        predicted = model(torch.as_tensor(hx, dtype=torch.float32)).mean(-1).numpy()
+    metrics = {
+        'data': {'plants': int(plants.size), 'held_out_plants': sorted(int(p) for p in held),
+                 'rows': int(data['plant'].size), 'training_pairs': int(y.size),
+                 'fingerprint': meta['fingerprint'], 'settings': data_cfg.to_dict()},
+        'fit': settings.to_dict(), 'pairs': asdict(rule),
+        'loss_history': [h[-1] for h in histories],
+        'heldout_rmse_log_ratio': float(np.sqrt(np.mean((predicted - hy) ** 2))),
+        'heldout_rmse_where_kept': float(np.sqrt(np.mean(((predicted - hy) ** 2)[hy > LOST]))),
+        'heldout_plans': plan_figures(model, held_profiles, rule, settings),
+        'wall_seconds': round(time.monotonic() - started, 1),
+    }
+    save_checkpoint(ws.model('response'), 'response', model.state_dict(), config.to_dict(),
+                    metrics, meta['fingerprint'])
+    return metrics

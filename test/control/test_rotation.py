@@ -1,0 +1,92 @@
+"""The learned rotation of the tracking curve and the planner that turns it."""
+
+import numpy as np
+import pytest
+import torch
+
+from dlmpc_ros.control.rotation import CurveRotation
+from dlmpc_ros.control.rotation_planner import OnlineCorrection, PlannerConfig, RotationPlanner
+from dlmpc_ros.learning.fit import fit
+from dlmpc_ros.learning.response import ResponseEnsemble, ResponseModelConfig
+
+
+def test_a_move_turns_the_rotation_at_its_point_by_exactly_that_much():
+    rotation = CurveRotation(-0.3, 0.3, knots=7, limit=1.0)
+    assert rotation(0.05) == 0.0
+    rotation.move(0.05, 0.1)            # between the knots 0.0 and 0.1
+    assert rotation(0.05) == pytest.approx(0.1)
+    assert rotation(-0.3) == 0.0 and rotation(0.3) == 0.0   # far knots untouched
+    rotation.move(0.1, -0.04)           # on a knot
+    assert rotation(0.1) == pytest.approx(rotation.values[4]) and rotation.updates == 2
+    rotation.move(0.2, 5.0)
+    assert np.abs(rotation.values).max() == 1.0             # within the limit
+    assert rotation(9.0) == rotation(0.3)                    # clipped to the range
+
+
+@pytest.mark.parametrize('bad', [dict(low=0.3, high=-0.3), dict(knots=1), dict(limit=0.0),
+                                 dict(low=np.nan)])
+def test_bad_rotation_settings_are_rejected(bad):
+    args = {'low': -0.3, 'high': 0.3, 'knots': 5, 'limit': 1.0, **bad}
+    with pytest.raises(ValueError):
+        CurveRotation(**args)
+
+
+def _best_turn(log_e: float) -> float:
+    """The toy laser's best rotation: more energy, turn the other way."""
+    return 0.2 * (1.0 - log_e)
+
+
+def _toy_gain(theta: np.ndarray, log_e: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """Change of log O of the toy laser when the rotation goes theta -> theta + delta."""
+    best = _best_turn(log_e)
+    return -4.0 * ((theta + delta - best) ** 2 - (theta - best) ** 2)
+
+
+@pytest.fixture(scope='module')
+def toy_model() -> ResponseEnsemble:
+    """A small real ensemble fit to the toy laser's response."""
+    rng = np.random.default_rng(0)
+    n = 4000
+    x = np.stack([rng.uniform(-0.3, 0.0, n), rng.uniform(-0.5, 0.5, n),
+                  rng.uniform(0.0, 2.0, n), rng.uniform(2.5, 3.5, n),
+                  rng.uniform(-0.2, 0.2, n)], axis=1)
+    y = _toy_gain(x[:, 1], x[:, 2], x[:, 4])
+    config = ResponseModelConfig(members=2, hidden=32, mean=x.mean(0).tolist(),
+                                 std=x.std(0).tolist())
+    model = ResponseEnsemble(config, torch.Generator().manual_seed(0))
+    samples = torch.as_tensor(np.c_[x, y], dtype=torch.float32)
+    for m, member in enumerate(model.members):
+        def loss(batch, _g, member=member):
+            z = (batch[:, :-1] - model.mean) / model.std
+            return torch.mean((member(z)[:, 0] - batch[:, -1]) ** 2), {}
+        fit(member, loss, samples, epochs=40, batch=256, lr=3e-3, seed=m, show_progress=False)
+    return model.eval()
+
+
+def test_the_planner_turns_toward_the_best_rotation_within_its_trust_radius(toy_model):
+    config = PlannerConfig(radius=0.05, spread_penalty=0.0, online=False)
+    for log_e in (0.2, 1.8):                     # best turn +0.16 and -0.16
+        planner = RotationPlanner(toy_model, config)
+        theta = 0.0
+        for _ in range(8):
+            planner.observe(np.exp(log_e), np.exp(3.0))
+            turn = planner.plan(-0.1, theta)
+            assert abs(turn) <= config.radius + 1e-12
+            theta += turn
+        assert theta == pytest.approx(_best_turn(log_e), abs=0.04)
+        assert planner.moves >= 3
+    # at the best rotation it holds; without a measurement it holds too
+    planner = RotationPlanner(toy_model, PlannerConfig(spread_penalty=0.0, min_gain=0.005,
+                                                       online=False))
+    assert planner.plan(-0.1, 0.0) == 0.0
+    planner.observe(np.exp(1.0), np.exp(3.0))
+    assert planner.plan(-0.1, _best_turn(1.0)) == 0.0
+
+
+def test_the_online_correction_learns_what_the_predictor_gets_wrong_on_this_laser():
+    correction = OnlineCorrection(memory=10)
+    assert correction(np.array([0.1]))[0] == 0.0
+    for delta in (0.1, -0.1, 0.05, -0.05, 0.1, -0.1):   # turns do 0.03 per 0.1 rad worse
+        correction.add(delta, -0.3 * delta)
+    slope = correction(np.array([0.1]))[0] - correction(np.array([0.0]))[0]
+    assert -0.03 < slope < -0.01  # shrunk toward 0 by the ridge
