@@ -102,8 +102,8 @@ def write_model_card(ws: Workspace) -> Path:
             lines.append(f'| {stage} | {what} | {metrics[stage][key]:.3f} | |')
     if 'response' in metrics:
         r = metrics['response']
-        lines.append(f"| response | RMSE of the predicted change of log O, plants held out of its data "
-                     f"(pulse kept) | {r['heldout_rmse_where_kept']:.3f} | |")
+        lines.append(f"| response | RMSE of the predicted change of log O, plants held out "
+                     f"of its data (pulse kept) | {r['heldout_rmse_where_kept']:.3f} | |")
         lines.append(f"| response | one-step plans on those plants: share of the best "
                      f"turn's gain within {r['fit']['plan_radius']} rad "
                      f"({r['heldout_plans']['plans_that_lose_the_pulse']} of "
