@@ -4,7 +4,11 @@ Off a pulse the measurement says little about K (a continuous-wave or noisy fiel
 alike for every K), so the surrogate and the map are no guide, and the angles they give
 may hold the laser off the pulse for ever. The supervisor watches the measured objective
 O = E/M against a lock threshold (a fraction of the mean O of the map's own training
-targets: no K) and, after ``patience`` unlocked periods, scans a list of candidate angle
+targets: no K; and, once the laser has shown what it can do, ``relock_fraction`` of the
+best O it measured recently, a maximum that decays by ``level_decay`` per period: a laser
+that is not the nominal cavity has its own scale of O, and a state far under its own
+best has lost its pulse for another) and, after ``patience`` unlocked periods, scans a
+list of candidate angle
 sets from a :class:`ScanSource`, dwelling ``dwell_periods`` at each once the servos are
 there, until O passes the threshold. Then control goes back to the DL-MPC's modes, told
 which point locked (:attr:`LockSupervisor.locked_at`).
@@ -47,6 +51,10 @@ class AcquisitionConfig:
     travel_periods: int = 20
     """Periods after which a scan point counts as reached even if the servos are not
     there (a point outside the angle limits)."""
+    relock_fraction: float = 0.6
+    """Also unlocked: O under this fraction of the laser's own recent best (0: off)."""
+    level_decay: float = 0.9995
+    """Per-period decay of that recent best (0.9995: to 0.6 in 1,000 periods)."""
     curve_points: tuple[float, ...] = (-0.25, -0.3, -0.2, -0.15, -0.1, -0.05, 0.0)
     """Parameters u on the tracking curve (K units) the curve scan visits, each with its
     mirror twin, in this order (from the simulator: c(-0.25) starts a pulse from noise at
@@ -61,6 +69,8 @@ class AcquisitionConfig:
         checks.positive(self, 'arrive_tolerance')
         if not self.curve_points or not np.all(np.isfinite(self.curve_points)):
             raise ValueError('curve_points must be a non-empty list of finite values')
+        if not (0 <= self.relock_fraction < 1 and 0 < self.level_decay <= 1):
+            raise ValueError('need 0 <= relock_fraction < 1 and 0 < level_decay <= 1')
 
 
 @dataclass(frozen=True)
@@ -128,16 +138,21 @@ class LockSupervisor:
         self.threshold = float(threshold)
         self.source = source
         self.unlocked = 0
+        self.level = 0.0  # the laser's recent best O (a decaying maximum)
         self.locked_at: ScanPoint | None = None
         self._order: list[ScanPoint] = []
         self._target: ScanPoint | None = None
         self._dwell = self._travel = 0
 
     def locked(self, objective: float) -> bool:
-        return bool(np.isfinite(objective) and objective >= self.threshold)
+        """Whether O is at the lock threshold and at ``relock_fraction`` of the level."""
+        threshold = max(self.threshold, self.config.relock_fraction * self.level)
+        return bool(np.isfinite(objective) and objective >= threshold)
 
     def step(self, objective: float, current: np.ndarray, surrogate: float) -> np.ndarray | None:
         self.locked_at = None
+        if np.isfinite(objective):
+            self.level = max(float(objective), self.level * self.config.level_decay)
         if self.locked(objective):
             self.source.note_locked(surrogate)
             self.locked_at = self._target

@@ -11,7 +11,8 @@ disagree on leaves the data they were trained on). It moves only when that beats
 settled with the O before, against the prediction, and learns a correction of the
 predictor for this laser online (:class:`OnlineCorrection`: a least-squares line in
 ``delta``, fit to the run's own moves, that the next plans add): the predictor is the
-prior, the laser corrects it. Planning costs one small forward pass of the ensemble.
+prior, the laser corrects it. A move after which O fell under ``undo_below`` of what it
+was is taken back at once. Planning costs one small forward pass of the ensemble.
 """
 
 from __future__ import annotations
@@ -48,6 +49,8 @@ class PlannerConfig:
     """Correct the predictor online from the run's own moves."""
     memory: int = 30
     """Recent moves the online correction is fit to."""
+    undo_below: float = 0.85
+    """A move after which O fell under this fraction of its O before is taken back."""
 
     def __post_init__(self) -> None:
         checks.counts(self, 'every_blocks', 'measurements', 'memory')
@@ -55,6 +58,8 @@ class PlannerConfig:
         checks.positive(self, 'radius')
         checks.non_negative(self, 'spread_penalty')
         checks.non_negative(self, 'min_gain')
+        if not 0 < self.undo_below <= 1:
+            raise ValueError(f'undo_below must be in (0, 1], got {self.undo_below}')
 
 
 class OnlineCorrection:
@@ -86,6 +91,7 @@ class RotationPlanner:
         self.recent: deque[tuple[float, float]] = deque(maxlen=self.config.measurements)
         self.correction = OnlineCorrection(self.config.memory)
         self.moves = 0
+        self.undone = 0
         self.last_prediction = float('nan')  # predicted change of log O of the last move
         self._pending: tuple[float, float, float] | None = None  # (delta, predicted, log O)
 
@@ -100,11 +106,16 @@ class RotationPlanner:
             return 0.0
         log_e, log_m = np.mean(np.array(self.recent), axis=0)
         log_o = log_e - log_m
-        if self._pending is not None and self.config.online:  # how did the last move do?
-            delta, predicted, before = self._pending
-            self.correction.add(delta, (log_o - before) - predicted)
-        self._pending = None
         cfg = self.config
+        pending, self._pending = self._pending, None
+        if pending is not None:  # how did the last move do?
+            delta, predicted, before = pending
+            if cfg.online:
+                self.correction.add(delta, (log_o - before) - predicted)
+            if log_o - before < np.log(cfg.undo_below):
+                self.undone += 1
+                self.recent.clear()
+                return -delta
         deltas = np.linspace(-cfg.radius, cfg.radius, cfg.candidates)
         mean, spread = self.model.predict(u, theta, float(np.exp(log_e)), float(np.exp(log_m)),
                                           deltas)

@@ -21,17 +21,12 @@ continues from the best point it saw.
 The curve is best for K < 0 only: the cavity's mirror symmetry
 (:mod:`dlmpc_ros.core.symmetry`) gives its twin ``m(s) = c(-s) + pi/2`` (every element
 turned by a quarter turn), which is as good at K as the curve is at -K. The tracker
-tracks on the curve while its estimate is below ``mirror_margin`` and on the twin while
-it is above ``-mirror_margin``. When the estimate leaves its branch's side it turns to
-the other branch along a path that keeps the pulse (measured on the simulator at every K
-up to |K| = 0.3, O never under 0.73 of its start): over ``ceil(pi/2 / turn_step)``
-periods all four angles turn together by a quarter turn while the curve parameter runs
-from the estimate's point to its mirror image, so the estimate stays where it was. At
-K = 0, where the fiber is isotropic, the turn is an exact symmetry. Turning one way keeps
-the pulse, the other way loses it for |K| > 0.1 on the simulator; a real laser's sign
-conventions are not known, so the tracker starts with the simulator's way and, when O
-falls under ``turn_guard`` x its O before the turn, turns back the way it came and tries
-the other way the next time.
+changes branch (:class:`~dlmpc_ros.control.branch_turn.BranchTurn`, a turn that keeps
+the pulse and is taken back unless the other branch is better) when its estimate leaves
+its branch's side by ``mirror_margin``, when O has fallen ``probe_drop`` below the best
+it measured since the branch was last chosen, and at the latest ``probe_every`` periods
+after its last turn: on a laser that is not the nominal cavity the estimate need not say
+which side of 0 K is on, the measured O does.
 
 The curve was made on the nominal cavity; on the laser in front of it the curve is
 turned by a learned rotation theta(u) (all four angles together, a different turn at
@@ -51,6 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dlmpc_ros.control.acquisition import ScanPoint
+from dlmpc_ros.control.branch_turn import ABANDONED, ARRIVED, KEPT, RETURNED, BranchTurn
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.rotation import CurveRotation
 from dlmpc_ros.core.angles import wrap_angles
@@ -121,6 +117,16 @@ class TrackingConfig:
     is losing the pulse: the tracker turns back (and turns the other way next time)."""
     turn_cooldown: int = 100
     """Periods after a turn (made or given up) before the next may start."""
+    verify: int = 3
+    """Periods after a turn whose median O decides whether the new branch is kept."""
+    branch_gain: float = 0.005
+    """Relative gain of O the new branch must bring to be kept."""
+    probe_drop: float = 0.04
+    """Relative fall of O below the best since the branch was chosen that makes the tracker
+    try the other branch."""
+    probe_every: int = 600
+    """Periods after the last turn (or entry) after which the tracker tries the other
+    branch anyway."""
     plan_every: int = 4
     """Dither blocks between two requests for a turn of the curve (with a planner)."""
     rotation_knots: int = 13
@@ -147,9 +153,11 @@ class TrackingConfig:
                              'survey periods >= 1')
         if not (self.mirror_margin >= 0 and 0 < self.turn_step <= QUARTER_TURN
                 and self.free_turn >= 0 and 0 < self.turn_guard <= 1
-                and self.turn_cooldown >= 1):
-            raise ValueError('need mirror_margin >= 0, 0 < turn_step <= pi/2, '
-                             'free_turn >= 0, 0 < turn_guard <= 1 and turn_cooldown >= 1')
+                and self.turn_cooldown >= 1 and self.verify >= 1 and self.branch_gain >= 0
+                and 0 < self.probe_drop < 1 and self.probe_every >= 1):
+            raise ValueError('need mirror_margin >= 0, 0 < turn_step <= pi/2, free_turn >= 0, '
+                             '0 < turn_guard <= 1, turn_cooldown >= 1, verify >= 1, '
+                             'branch_gain >= 0, 0 < probe_drop < 1 and probe_every >= 1')
         if not (self.plan_every >= 1 and self.rotation_knots >= 2 and self.rotation_limit > 0):
             raise ValueError('need plan_every >= 1, rotation_knots >= 2 and '
                              'rotation_limit > 0')
@@ -178,17 +186,9 @@ class CurveTracker:
         self.limits = limits or AngleLimits()
         self.active = False
         self.branch = 1           # 1: on the curve; -1: on its mirror twin
-        self.branch_changes = 0   # quarter turns completed
-        self.turns_abandoned = 0  # quarter turns given up (O fell)
-        self.turns_blocked = 0    # quarter turns the servo limits did not allow
-        self.turn_direction = -1.0  # the way of turning that kept the pulse last
-        self._turn_way = -1.0       # the way the turn under way goes
-        self._turn: list[np.ndarray] = []  # the rest of a quarter turn (or its way back)
-        self._turned: list[np.ndarray] = []  # commands of the turn issued so far
-        self._turn_from = np.zeros(4)        # the angles the turn started from
-        self._turn_objective = 0.0           # O measured just before it
-        self._turning_back = False
-        self._turn_wait = 0                  # periods before the next attempt
+        self.turner = BranchTurn(self.config, self.limits, self._on_curve)
+        self._branch_best = 0.0   # best block O since the branch was last chosen
+        self._estimate_before_turn = 0.0
         self._locked = 0          # consecutive locked periods while not tracking
         self._recent: deque[float] = deque(maxlen=self.config.entry_patience)
         self._entry_objective = 0.0
@@ -235,14 +235,15 @@ class CurveTracker:
             raise ValueError(f'branch must be 1 or -1, got {branch}')
         self.active, self._wait = True, 0
         self.branch = branch
-        self._turn, self._turning_back = [], False
+        self.turner.cancel()
         self._recentre()
         self.estimate = float(np.clip(estimate, self.grid[0], self.grid[-1]))
         self._entry_objective = float(objective) if np.isfinite(objective) else 0.0
 
     def interrupt(self) -> None:
         """Something else took over (the acquisition scan): stop and wait a cooldown."""
-        self._survey, self._turn, self._turning_back = [], [], False
+        self._survey = []
+        self.turner.cancel()
         if self.active:
             self._leave(failed=self._age <= self.config.settle + self.config.guard_periods)
         self._locked = 0
@@ -261,9 +262,9 @@ class CurveTracker:
             if self._age == self.config.settle:  # the guard judges against the settled O too
                 self._entry_objective = max(self._entry_objective,
                                             float(np.median(self._settling)))
-        if self._turn_wait > 0:
-            self._turn_wait -= 1
-        if self._turn:
+        self.turner.tick()
+        self._since_turn += 1
+        if self.turner.busy:
             return self._turning(float(objective))
         if self._survey:
             return self._survey_step(float(objective))
@@ -284,73 +285,46 @@ class CurveTracker:
         self._in_block += 1
         if self._in_block >= self.config.block:
             self._end_block(float(objective))
-            if current is not None and self._wants_other_branch():
-                turn = self._plan_turn(np.asarray(current, float))
-                if turn:
-                    self._turn, self._turned = turn, []
-                    self._turn_from = np.asarray(current, float)
-                    self._turn_objective = float(objective)
-                    return self._turning(float(objective))
+            wanted = self._wants_other_branch(float(objective)) if current is not None else ''
+            if wanted and self.turner.begin(np.asarray(current, float),
+                                            self.branch * self.estimate, float(objective),
+                                            trial=wanted == 'trial'):
+                return self._turning(float(objective))
         return self._command()
 
-    def _wants_other_branch(self) -> bool:
-        """Whether the estimate has gone past the margin onto the other branch's side (and
-        no failed turn is still cooling down)."""
-        return (self.config.mirror and self._turn_wait == 0
-                and self.branch * self.estimate > self.config.mirror_margin)
-
-    def _plan_turn(self, current: np.ndarray) -> list[np.ndarray]:
-        """The commands (each (4,) [rad], from the angles ``current``) that take the laser
-        to the other branch at the same estimate: a quarter turn of all four angles while
-        the curve parameter runs from ``u`` to ``-u``; [] (and counted) if no way round
-        stays inside the servo limits.
-
-        Near K = 0 (``|u| <= free_turn``) either way keeps the pulse, and the tracker turns
-        the way that brings the angles back toward the middle of their range (so that
-        turns back and forth do not wind the servos up to their ends); further out it
-        turns the way that kept the pulse last."""
-        u = self.branch * float(np.clip(self.estimate, self.grid[0], self.grid[-1]))
-        steps = int(np.ceil(QUARTER_TURN / self.config.turn_step - 1e-9))
-        start = self._on_curve(u)
-        fractions = (np.arange(steps) + 1) / steps
-        middle = 0.5 * (self.limits.low + self.limits.high)
-        ways = ([self.turn_direction] if abs(u) > self.config.free_turn else
-                sorted((-1.0, 1.0), key=lambda d: abs(np.mean(current) + d * QUARTER_TURN
-                                                      - middle)))
-        for way in ways:
-            path = [current + self._on_curve(u * (1 - 2 * t)) - start + way * QUARTER_TURN * t
-                    for t in fractions]
-            if all(np.all(a >= self.limits.low) and np.all(a <= self.limits.high)
-                   for a in path):
-                self._turn_way = way
-                return path
-        self.turns_blocked += 1
-        self._turn_wait = self.config.turn_cooldown
-        return []
+    def _wants_other_branch(self, objective: float) -> str:
+        """Whether to try the other branch: ``'estimate'`` when the estimate has gone past
+        the margin onto its side, ``'trial'`` when O has fallen ``probe_drop`` below the
+        best since the branch was chosen or no turn was tried for ``probe_every`` periods,
+        else '' (also while a turn is cooling down)."""
+        cfg = self.config
+        if not cfg.mirror or self.turner.wait > 0:
+            return ''
+        if self.branch * self.estimate > cfg.mirror_margin:
+            return 'estimate'
+        if (objective < (1 - cfg.probe_drop) * self._branch_best
+                or self._since_turn >= cfg.probe_every):
+            return 'trial'
+        return ''
 
     def _turning(self, objective: float) -> np.ndarray:
-        """The next command of the quarter turn; after its last, the other branch. The
-        turn is exact only near K = 0: if O falls under ``turn_guard`` x the O before it,
-        the tracker turns back the way it came and waits ``turn_cooldown`` periods."""
-        cfg = self.config
-        if (self._turned and not self._turning_back
-                and not objective >= cfg.turn_guard * self._turn_objective):
-            self._turning_back = True
-            self._turn = self._turned[-2::-1] + [self._turn_from]
-        command = self._turn.pop(0)
-        self._turned.append(command)
-        if not self._turn:
-            if self._turning_back:
-                self._turning_back = False
-                self.turns_abandoned += 1
-                self.turn_direction = -self._turn_way  # the other way next time
-            else:
-                self.branch = -self.branch
-                self.branch_changes += 1
-            self._turn_wait = cfg.turn_cooldown
+        """A period of a change of branch: the turn's command (or, while the new branch is
+        on trial, its point at the estimate); the branch flips when the laser arrives and
+        back when it is turned back."""
+        command, event = self.turner.step(objective)
+        if event == ARRIVED:  # on the other branch, at the curve point the turn landed at
+            self._estimate_before_turn = self.estimate
+            self.branch = -self.branch
+            self.estimate = self.branch * self.turner.landing
+        elif event == RETURNED:
+            self.branch = -self.branch
+            self.estimate = self._estimate_before_turn
+        if event in (KEPT, RETURNED, ABANDONED):
+            self._since_turn = 0
             self._restart_dither()
-            self._age = min(self._age, cfg.settle)  # let the guard settle again
-        return command
+            self._branch_best = objective if np.isfinite(objective) else 0.0
+            self._age = min(self._age, self.config.settle)  # let the guard settle again
+        return self.curve(self.estimate) if command is None else command
 
     def _should_survey(self, objective: float) -> bool:
         if self._survey_wait > 0:
@@ -404,6 +378,8 @@ class CurveTracker:
         # periods since entry; consecutive periods under the guard and under the survey level
         self._age, self._low, self._short = 0, 0, 0
         self._settling: list[float] = []  # O measured while settling after entry
+        self._branch_best = 0.0
+        self._since_turn = 0     # periods since the last turn ended (or the entry)
         self._survey: list[float] = []  # survey points still to visit
         # the start point on the branch the tracker is on (its twin on the mirror branch)
         self.estimate = self.branch * float(np.clip(self.config.start, self.grid[0],
@@ -435,6 +411,8 @@ class CurveTracker:
         self._blocks.append((self._sign, objective))
         self._in_block = 0
         self._block_count += 1
+        if self._age > cfg.settle and np.isfinite(objective):
+            self._branch_best = max(self._branch_best, objective)
         self._sign = -self._sign
         if len(self._blocks) == 3 and self._age > cfg.settle:
             (_, before), (sign, middle), (_, after) = self._blocks

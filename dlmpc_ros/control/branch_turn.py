@@ -1,0 +1,155 @@
+"""The curve tracker's change of branch: from the tracking curve to its mirror twin and back.
+
+The twin of the curve, ``c(-s) + pi/2`` (:mod:`dlmpc_ros.core.symmetry`), is as good at K
+as the curve is at -K. A :class:`BranchTurn` takes the laser from one to the other
+without losing the pulse: over ``ceil(pi/2 / turn_step)`` periods all four angles turn
+together by a quarter turn while the curve parameter runs from the point ``u`` the
+tracker is at to ``-|u|``, on the curve's good side (K < 0). On the nominal cavity the
+estimate follows K, and a tracker past the margin on the wrong side (``u > 0``) lands at
+the mirror image of its point, keeping its estimate; on other lasers the best point
+often sits at the end of the curve whatever K is, and a tracker there (``u < 0``) keeps
+its point and only turns. Measured on the simulator (nominal cavity and family plants 2
+and 6): the first keeps the pulse at every K up to |K| = 0.3 (O never under 0.73 of its
+start), the second up to |K| = 0.15 from the good side (O over 0.92 of its start); both
+end 2 to 14 % higher where the twin is the better branch. At K = 0, where the fiber is
+isotropic, the turn is an exact symmetry.
+
+Two checks make it safe on a laser that is not the simulator:
+
+- turning one way keeps the pulse, the other way loses it for |K| > 0.1 on the
+  simulator, and a real laser's sign conventions are not known: if O falls under
+  ``turn_guard`` x its O before the turn, the turn goes back the way it came and the
+  other way is tried next time (near K = 0, within ``free_turn``, either way keeps the
+  pulse and the turn goes the way that brings the servos back toward the middle of their
+  range);
+- the turn is a trial: ``verify`` periods after it, O is compared with O before it, and
+  unless the new branch gives ``branch_gain`` more, the laser is turned back.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.core.symmetry import QUARTER_TURN
+
+#: What a period of the turn ended with (:meth:`BranchTurn.step`).
+ARRIVED, KEPT, RETURNED, ABANDONED = 'arrived', 'kept', 'returned', 'abandoned'
+
+
+class BranchTurn:
+    """A change of branch under way, and what earlier ones taught.
+
+    ``on_curve(u)`` gives the curve's angles (4,) [rad] at ``u`` (with any learned
+    rotation); the settings are the tracker's (:class:`~dlmpc_ros.control.tracking.
+    TrackingConfig`: ``turn_step``, ``free_turn``, ``turn_guard``, ``turn_cooldown``,
+    ``verify``, ``branch_gain``)."""
+
+    def __init__(self, config, limits: AngleLimits,
+                 on_curve: Callable[[float], np.ndarray]) -> None:
+        self.config = config
+        self.limits = limits
+        self.on_curve = on_curve
+        self.direction = -1.0    # the way round that kept the pulse last
+        self.made = 0            # turns kept
+        self.abandoned = 0       # turns given up because O fell (pulse going)
+        self.rejected = 0        # turns taken back because the other branch was no better
+        self.blocked = 0         # turns the servo limits did not allow
+        self.wait = 0            # periods before the next turn may start
+        self._path: list[np.ndarray] = []    # commands still to send
+        self._issued: list[np.ndarray] = []  # commands of this turn sent so far
+        self._from = np.zeros(4)             # the angles it started from
+        self._before = 0.0                   # O just before it
+        self._way = -1.0
+        self._phase = ''                     # '', 'go', 'verify', 'back', 'lost'
+        self.landing = 0.0                   # curve point the turn under way lands at
+        self._checked: list[float] = []      # O measured while verifying
+
+    @property
+    def busy(self) -> bool:
+        return bool(self._phase)
+
+    def tick(self) -> None:
+        """One period passed (the cooldown runs down)."""
+        if self.wait > 0:
+            self.wait -= 1
+
+    def cancel(self) -> None:
+        """Something else took over: forget the turn under way."""
+        self._phase, self._path = '', []
+
+    def begin(self, current: np.ndarray, u: float, objective: float,
+              trial: bool = False) -> bool:
+        """Start a turn from the angles ``current`` (4,) [rad] at curve point ``u``, with O
+        measured now; False (and a cooldown) if no way round stays inside the limits. The
+        turn lands at the curve point :attr:`landing` (``-|u|``).
+
+        Every turn goes in the same direction, so turns one after the other wind the
+        servos toward an end of their range. A turn near K = 0 (``|u| <= free_turn``)
+        goes the way that brings them back toward the middle first, any other the way that
+        kept the pulse last first; the other way is the fallback where the first leaves
+        the range. A ``trial`` (the other branch tried on the evidence of O alone, with K
+        unknown) goes only the way that kept the pulse last."""
+        cfg = self.config
+        steps = int(np.ceil(QUARTER_TURN / cfg.turn_step - 1e-9))
+        start = self.on_curve(u)
+        self.landing = -abs(u)
+        fractions = (np.arange(steps) + 1) / steps
+        middle = 0.5 * (self.limits.low + self.limits.high)
+        if trial:
+            ways: tuple[float, ...] = (self.direction,)
+        elif abs(u) > cfg.free_turn:
+            ways = (self.direction, -self.direction)
+        else:
+            ways = tuple(sorted((-1.0, 1.0), key=lambda d: abs(
+                np.mean(current) + d * QUARTER_TURN - middle)))
+        for way in ways:
+            path = [current + self.on_curve(u + (self.landing - u) * t) - start
+                    + way * QUARTER_TURN * t for t in fractions]
+            if all(np.all(a >= self.limits.low) and np.all(a <= self.limits.high)
+                   for a in path):
+                self._way, self._path, self._issued = way, path, []
+                self._from = np.asarray(current, float)
+                self._before = float(objective)
+                self._phase = 'go'
+                return True
+        self.blocked += 1
+        self.wait = cfg.turn_cooldown
+        return False
+
+    def step(self, objective: float) -> tuple[np.ndarray | None, str]:
+        """This period's O -> the command of the turn (None while verifying: the tracker
+        holds the new branch's point) and what the period ended with ('' or one of
+        :data:`ARRIVED`, :data:`KEPT`, :data:`RETURNED`, :data:`ABANDONED`)."""
+        cfg = self.config
+        if self._phase == 'verify':
+            if np.isfinite(objective):
+                self._checked.append(float(objective))
+            if len(self._checked) < cfg.verify:
+                return None, ''
+            if np.median(self._checked) >= (1 + cfg.branch_gain) * self._before:
+                self._phase, self.wait = '', cfg.turn_cooldown
+                self.made += 1
+                return None, KEPT
+            self._phase, self._path = 'back', self._issued[-2::-1] + [self._from]
+        elif (self._phase == 'go' and self._issued
+              and not objective >= cfg.turn_guard * self._before):  # the pulse is going
+            self._phase, self._path = 'lost', self._issued[-2::-1] + [self._from]
+        command = self._path.pop(0)
+        self._issued.append(command)
+        if self._path:
+            return command, ''
+        if self._phase == 'go':
+            self._phase, self._checked = 'verify', []
+            return command, ARRIVED
+        event = RETURNED if self._phase == 'back' else ABANDONED
+        if event == ABANDONED:
+            self.abandoned += 1
+            if self._way == self.direction:
+                self.direction = -self._way  # the other way round next time
+        else:
+            self.rejected += 1
+        self._phase, self.wait = '', cfg.turn_cooldown
+        return command, event
