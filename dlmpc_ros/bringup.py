@@ -51,7 +51,8 @@ NODES = {
                             'baseline_controller.yaml'),
     'recorder': ('dlmpc_ros.nodes.recorder_node', 'recorder.yaml'),
 }
-CONTROLLER_CHOICES = (*CONTROLLERS, 'none')
+#: ``explore``: the DL-MPC exploring turns of its curve, to record a calibration bag.
+CONTROLLER_CHOICES = (*CONTROLLERS, 'explore', 'none')
 #: Nodes that subscribe /laser/state (the simulator holds round trip 1 until they do).
 #: Topics each node publishes that the recorder waits for before the run starts.
 PUBLISHES = {
@@ -70,7 +71,7 @@ def controller_nodes(controller: str) -> list[str]:
     """Nodes that make up ``--controller``."""
     if controller == 'none':
         return []
-    if controller == 'dlmpc':
+    if controller in ('dlmpc', 'explore'):
         return ['vae_estimator', 'mpc_controller']
     return ['baseline_controller']
 
@@ -243,6 +244,8 @@ def build_graph(args: argparse.Namespace, env: dict[str, str], log_dir: Path) ->
             overrides = {'period': args.period}
             if args.models_dir is not None:
                 overrides['models_dir'] = str(args.models_dir.resolve())
+            if name == 'mpc_controller' and args.controller == 'explore':
+                overrides['plan_explore'] = True
             if name != 'vae_estimator':
                 overrides.update(args.controller_overrides)
             if name == 'baseline_controller':

@@ -9,6 +9,10 @@ steady-response predictor ``models/response.pt`` (from rotation data of plants d
 the family, made into ``data/response`` first when missing: a quarter of an hour on 2
 cores), ``models/metrics.json``, ``models/figures/`` and ``models/MODEL_CARD.md``.
 ``--quick`` trains tiny models for tests.
+``adapt --bag DIR --out MODELS`` calibrates the models of ``--models-dir`` to a lab's
+laser from a bag of ``bringup --controller explore --record DIR`` (``--round-trips N``:
+its first N round trips only) and writes a models folder to run with
+(:mod:`dlmpc_ros.training.adapt`).
 ``check-estimator`` measures where the shipped estimator's surrogate gets its information
 (angles or E and M; needs true K, so it is an evaluation) and writes a report to ``--out``.
 """
@@ -25,7 +29,8 @@ from dlmpc_ros.learning.checkpoint import ModelFileError
 from dlmpc_ros.scaleout import default_workers
 from dlmpc_ros.training.workspace import Workspace
 
-STAGES = ('all', 'vae', 'kmap', 'mprnn', 'baselines', 'curve', 'response', 'check-estimator')
+STAGES = ('all', 'vae', 'kmap', 'mprnn', 'baselines', 'curve', 'response', 'check-estimator',
+          'adapt')
 
 
 def run_stages(stage: str, ws: Workspace, seed: int, quick: bool, show: bool,
@@ -89,16 +94,38 @@ def check_estimator(ws: Workspace, out: Path, quick: bool, show: bool) -> None:
     print(f'check-estimator: report in {out}/report.md', flush=True)
 
 
+def adapt(args: argparse.Namespace, show: bool) -> int:
+    """Calibrate the models to the laser of ``--bag``; writes ``--out``."""
+    from dlmpc_ros.training.adapt import AdaptConfig, adapt_models
+    if args.bag is None or args.out is None:
+        print('dlmpc-train adapt: give --bag DIR (a run of `bringup --controller explore '
+              '--record DIR`) and --out MODELS', file=sys.stderr)
+        return 2
+    report = adapt_models(args.bag, args.models_dir, args.out,
+                          AdaptConfig(round_trips=args.round_trips, seed=args.seed,
+                                      epochs=4 if args.quick else AdaptConfig.epochs),
+                          show_progress=show)
+    print(f"adapt: {report['pairs']} pairs from {report['control_periods']} control periods "
+          f"({report['round_trips_used']} round trips); predictor RMSE on them "
+          f"{report['rmse_before']:.4f} -> {report['rmse_after']:.4f}; rotation prior at "
+          f"{report['prior_knots_set']} knots; wrote {args.out}", flush=True)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog='dlmpc-train', description=__doc__.split('\n\n')[0])
     p.add_argument('stage', choices=STAGES)
     p.add_argument('--data-dir', type=Path, default=Path('data'))
     p.add_argument('--models-dir', type=Path, default=Path('models'))
     p.add_argument('--seed', type=int, default=0)
-    p.add_argument('--out', type=Path, default=Path('out/estimator-check'),
-                   help='check-estimator: where its report goes')
+    p.add_argument('--out', type=Path,
+                   help='check-estimator: where its report goes (default '
+                        'out/estimator-check); adapt: the calibrated models folder')
     p.add_argument('--quick', action='store_true', help='tiny training runs for tests')
     p.add_argument('--no-progress', action='store_true')
+    p.add_argument('--bag', type=Path, help='adapt: the recorded bag of the laser')
+    p.add_argument('--round-trips', type=int, default=0,
+                   help='adapt: use the first N round trips of the bag (0: all)')
     p.add_argument('--workers', type=int, default=default_workers(),
                    help='response: simulate its data on this many local Dask workers '
                         '(default: the cores)')
@@ -108,8 +135,10 @@ def main(argv: list[str] | None = None) -> int:
     started = time.monotonic()
     try:
         if args.stage == 'check-estimator':
-            check_estimator(ws, args.out, args.quick, show)
+            check_estimator(ws, args.out or Path('out/estimator-check'), args.quick, show)
             return 0
+        if args.stage == 'adapt':
+            return adapt(args, show)
         run_stages(args.stage, ws, args.seed, args.quick, show, args.workers)
     except (FileNotFoundError, ModelFileError, ValueError) as err:
         print(f'dlmpc-train: {err}', file=sys.stderr)

@@ -80,8 +80,7 @@ class BranchTurn:
         """Something else took over: forget the turn under way."""
         self._phase, self._path = '', []
 
-    def begin(self, current: np.ndarray, u: float, objective: float,
-              trial: bool = False) -> bool:
+    def begin(self, current: np.ndarray, u: float, objective: float) -> bool:
         """Start a turn from the angles ``current`` (4,) [rad] at curve point ``u``, with O
         measured now; False (and a cooldown) if no way round stays inside the limits. The
         turn lands at the curve point :attr:`landing` (``-|u|``).
@@ -90,18 +89,15 @@ class BranchTurn:
         servos toward an end of their range. A turn near K = 0 (``|u| <= free_turn``)
         goes the way that brings them back toward the middle first, any other the way that
         kept the pulse last first; the other way is the fallback where the first leaves
-        the range. A ``trial`` (the other branch tried on the evidence of O alone, with K
-        unknown) goes only the way that kept the pulse last."""
+        the range."""
         cfg = self.config
         steps = int(np.ceil(QUARTER_TURN / cfg.turn_step - 1e-9))
         start = self.on_curve(u)
         self.landing = -abs(u)
         fractions = (np.arange(steps) + 1) / steps
         middle = 0.5 * (self.limits.low + self.limits.high)
-        if trial:
-            ways: tuple[float, ...] = (self.direction,)
-        elif abs(u) > cfg.free_turn:
-            ways = (self.direction, -self.direction)
+        if abs(u) > cfg.free_turn:
+            ways: tuple[float, ...] = (self.direction, -self.direction)
         else:
             ways = tuple(sorted((-1.0, 1.0), key=lambda d: abs(
                 np.mean(current) + d * QUARTER_TURN - middle)))

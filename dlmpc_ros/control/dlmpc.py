@@ -75,11 +75,13 @@ class DLMPCController:
     def __init__(self, kmap: KMap, mprnn: MPRNN, config: DLMPCConfig | None = None,
                  target_objective: float | None = None,
                  curve: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-                 response: ResponseEnsemble | None = None) -> None:
+                 response: ResponseEnsemble | None = None,
+                 rotation_prior: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         self.config = config or DLMPCConfig()
         self.target_objective = target_objective
         self.curve = curve
         self.response = response
+        self.rotation_prior = rotation_prior
         self.kmap = kmap
         self.model = mprnn
         self.model.kmap = kmap
@@ -95,6 +97,8 @@ class DLMPCController:
             grid, angles, expected = curve
             self.tracker = CurveTracker(grid, angles, lock_fraction * target_objective,
                                         cfg.tracking, expected, cfg.limits)
+            if rotation_prior is not None:
+                self.tracker.rotation.start_from(*rotation_prior)
         self.planner: RotationPlanner | None = None
         if self.tracker is not None and response is not None and cfg.planner is not None:
             self.planner = RotationPlanner(response, cfg.planner)
@@ -117,7 +121,7 @@ class DLMPCController:
     def fresh(self) -> DLMPCController:
         """A controller with the same models and settings and no history."""
         return DLMPCController(self.kmap, self.model, self.config, self.target_objective,
-                               self.curve, self.response)
+                               self.curve, self.response, self.rotation_prior)
 
     def map_angles(self, surrogate: float) -> np.ndarray:
         """The map's angles (4,) [rad] for a surrogate value."""

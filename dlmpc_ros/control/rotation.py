@@ -36,6 +36,11 @@ class CurveRotation:
         self.limit = float(limit)
         self.updates = 0
 
+    def start_from(self, knots: np.ndarray, values: np.ndarray) -> None:
+        """Begin from a calibrated rotation (``values`` [rad] at ``knots``, interpolated
+        onto this one's knots, within +-limit)."""
+        self.values = np.clip(np.interp(self.knots, knots, values), -self.limit, self.limit)
+
     def __call__(self, u: float) -> float:
         """theta at ``u`` [rad] (u clipped to the knots' range)."""
         return float(np.interp(u, self.knots, self.values))
@@ -52,3 +57,32 @@ class CurveRotation:
         index = [right - 1, right]
         self.values[index] = np.clip(self.values[index] + change, -self.limit, self.limit)
         self.updates += 1
+
+
+def locate(angles: np.ndarray, grid: np.ndarray, curve: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Where angle sets lie on the rotated curve and its twin.
+
+    ``angles`` (n, 4) [rad], the curve ``grid`` (m,) and ``curve`` (m, 4). Every set is
+    matched to the grid point ``u`` and rotation ``theta`` [rad] that reproduce it best
+    (each element modulo pi, the half-wave plate modulo pi/2); a rotation beyond
+    +-pi/4 is the twin: ``branch`` -1 with ``theta`` less a quarter turn. Returns
+    ``(branch (n,), u (n,), theta (n,), misfit (n,))``, the misfit the RMS angle
+    difference left [rad].
+    """
+    angles = np.asarray(angles, float)[:, None, :]                 # (n, 1, 4)
+    residual = angles - np.asarray(curve, float)[None]             # (n, m, 4)
+    pi_periodic = residual[..., [0, 1, 3]]
+    theta = 0.5 * np.arctan2(np.sin(2 * pi_periodic).sum(-1),
+                             np.cos(2 * pi_periodic).sum(-1))      # (n, m), mod pi
+    left = residual - theta[..., None]
+    left[..., [0, 1, 3]] = (left[..., [0, 1, 3]] + np.pi / 2) % np.pi - np.pi / 2
+    left[..., 2] = (left[..., 2] + np.pi / 4) % (np.pi / 2) - np.pi / 4
+    misfit = np.sqrt(np.mean(left ** 2, axis=-1))                   # (n, m)
+    best = np.argmin(misfit, axis=1)
+    rows = np.arange(best.size)
+    theta = theta[rows, best]
+    twin = np.abs(theta) > np.pi / 4
+    theta = np.where(twin, theta - np.sign(theta) * np.pi / 2, theta)
+    return (np.where(twin, -1, 1), np.asarray(grid, float)[best], theta,
+            misfit[rows, best])

@@ -51,6 +51,11 @@ class PlannerConfig:
     """Recent moves the online correction is fit to."""
     undo_below: float = 0.85
     """A move after which O fell under this fraction of its O before is taken back."""
+    explore: bool = False
+    """Calibration runs: every plan a random turn within the trust radius instead of the
+    predicted best (the undo still guards it), to record what turns do on this laser."""
+    seed: int = 0
+    """Seed of the exploring turns."""
 
     def __post_init__(self) -> None:
         checks.counts(self, 'every_blocks', 'measurements', 'memory')
@@ -92,6 +97,7 @@ class RotationPlanner:
         self.correction = OnlineCorrection(self.config.memory)
         self.moves = 0
         self.undone = 0
+        self._rng = np.random.default_rng(self.config.seed)
         self.last_prediction = float('nan')  # predicted change of log O of the last move
         self._pending: tuple[float, float, float] | None = None  # (delta, predicted, log O)
 
@@ -123,7 +129,9 @@ class RotationPlanner:
             mean = mean + self.correction(deltas) - self.correction(np.zeros(1))
         score = mean - cfg.spread_penalty * spread
         best = int(np.argmax(score))
-        if not score[best] > max(cfg.min_gain, score[cfg.candidates // 2]):
+        if cfg.explore:
+            best = int(self._rng.integers(cfg.candidates))
+        elif not score[best] > max(cfg.min_gain, score[cfg.candidates // 2]):
             return 0.0
         self.moves += 1
         self.last_prediction = float(mean[best])

@@ -1,10 +1,12 @@
 """mpc_controller: the DL-MPC controller (MP-RNN planning, VAE surrogate + map inner loop,
-a lock acquisition scan while the laser is off its pulse, curve tracking once locked).
+a lock acquisition scan while the laser is off its pulse, curve tracking once locked, and
+turns of the curve planned with the steady-response predictor).
 
 Subscribes ``/laser/state`` and ``/estimator/birefringence``; once per control period
 publishes ``/laser/angles_cmd`` and ``/controller/status``. It never reads the true K:
 it has no subscription to ``/laser/birefringence`` or ``/laser/sim_truth``, and none of
-the files it loads (``kmap.pt``, ``mprnn.pt``, ``track_curve.npz``) holds the K of a run.
+the files it loads (``kmap.pt``, ``mprnn.pt``, ``track_curve.npz``, ``response.pt``,
+``rotation_prior.npz``) holds the K of a run.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from dlmpc_ros.control.acquisition import AcquisitionConfig
 from dlmpc_ros.control.dlmpc import DLMPCController
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.factory import load_dlmpc
+from dlmpc_ros.control.rotation_planner import PlannerConfig
 from dlmpc_ros.control.tracking import TrackingConfig
 from dlmpc_ros.learning.checkpoint import ModelFileError
 from dlmpc_ros.paths import models_dir
@@ -42,6 +45,11 @@ _TRK = TrackingConfig()
 TRACKING_DEFAULTS: dict[str, object] = {
     'track': True, 'track_dither': _TRK.dither, 'track_step': _TRK.step,
     'track_guard': _TRK.guard,
+}
+_PLN = PlannerConfig()
+PLANNER_DEFAULTS: dict[str, object] = {
+    'plan': True, 'plan_radius': _PLN.radius, 'plan_spread_penalty': _PLN.spread_penalty,
+    'plan_online': _PLN.online, 'plan_explore': _PLN.explore,
 }
 DESCRIPTIONS = {
     'min_iterations': 'fewest gradient-ascent iterations per plan',
@@ -72,6 +80,13 @@ DESCRIPTIONS = {
                   'it adapts between 0.005 and 0.03)',
     'track_guard': 'hand back to the inner loop when O under tracking falls below this x '
                    'the O before it took over',
+    'plan': 'while tracking, turn the curve where the steady-response predictor '
+            '(response.pt) says O gains (the model-predictive step on this laser)',
+    'plan_radius': 'trust radius: largest turn of the curve per plan [rad]',
+    'plan_spread_penalty': 'weight of the predictor ensemble\'s spread against its mean gain',
+    'plan_online': 'correct the predictor online from the run\'s own turns',
+    'plan_explore': 'calibration runs: random turns within the trust radius instead of the '
+                    'planned ones (record a bag for `dlmpc-train adapt`)',
 }
 RANGES: dict[str, tuple[float, float]] = {
     'min_iterations': (1, 10_000), 'max_iterations': (1, 10_000),
@@ -82,6 +97,7 @@ RANGES: dict[str, tuple[float, float]] = {
     'acquire_patience': (1, 1_000_000), 'acquire_dwell': (1, 1_000_000),
     'track_dither': (1e-9, 1.0), 'track_step': (_TRK.min_step, _TRK.max_step),
     'track_guard': (1e-6, 1.0),
+    'plan_radius': (1e-3, 1.0), 'plan_spread_penalty': (0.0, 100.0),
 }
 
 
@@ -91,7 +107,7 @@ class MPCControllerNode(ControllerNodeBase):
     def __init__(self) -> None:
         super().__init__('mpc_controller',
                          {**DEFAULTS, **OPTIONAL_DEFAULTS, **ACQUISITION_DEFAULTS,
-                          **TRACKING_DEFAULTS}, DESCRIPTIONS, RANGES)
+                          **TRACKING_DEFAULTS, **PLANNER_DEFAULTS}, DESCRIPTIONS, RANGES)
         v = self.values
         try:
             acquisition = AcquisitionConfig(
@@ -99,7 +115,11 @@ class MPCControllerNode(ControllerNodeBase):
                 dwell_periods=v['acquire_dwell']) if v['acquire'] else None
             tracking = TrackingConfig(dither=v['track_dither'], step=v['track_step'],
                                       guard=v['track_guard']) if v['track'] else None
+            planner = PlannerConfig(
+                radius=v['plan_radius'], spread_penalty=v['plan_spread_penalty'],
+                online=v['plan_online'], explore=v['plan_explore']) if v['plan'] else None
             config = DLMPCConfig(limits=self.limits, acquisition=acquisition, tracking=tracking,
+                                 planner=planner,
                                  **{name: v[name] for name in DEFAULTS},
                                  **{name: v[name] or None for name in OPTIONAL_DEFAULTS})
         except (ValueError, TypeError) as err:

@@ -168,7 +168,7 @@ def test_tracker_turns_to_the_mirror_twin_when_k_drifts_through_zero():
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
     o, _, branch = _drive_mirrored(tracker, drift, 3000)
     assert tracker.branch == -1 and tracker.turner.abandoned == 0
-    assert tracker.turner.made >= 1       # trial turns that were no better were taken back
+    assert tracker.turner.made >= 1       # turns that found no better branch were taken back
     changed = np.flatnonzero(np.diff(branch)) + 1
     assert changed.size == tracker.turner.made + 2 * tracker.turner.rejected
     assert abs(tracker.estimate - 0.15) < 0.06
@@ -188,7 +188,7 @@ def test_a_turn_that_loses_the_pulse_is_turned_back_and_tried_the_other_way():
     simulator's direction starts losing O, the tracker turns back before O falls far,
     and after the cooldown turns the other way, onto the twin."""
     cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, turn_cooldown=30,
-                         mirror_margin=0.2, probe_drop=0.99)  # turns on the estimate only
+                         mirror_margin=0.2)
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
     tracker.turner.direction = 1.0                                  # the wrong way here
     ramp = lambda t: -0.1 + 0.35 * min(max(t - 300, 0) / 200, 1.0)  # noqa: E731

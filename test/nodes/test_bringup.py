@@ -1,6 +1,7 @@
 """The whole graph through the bringup, as separate processes."""
 
 import csv
+import json
 import subprocess
 import sys
 
@@ -100,21 +101,38 @@ def test_ctrl_c_stops_the_graph_cleanly(ros_env, tmp_path):
         assert 'Traceback' not in (tmp_path / 'logs' / f'{name}.log').read_text()
 
 
-def test_bringup_records_every_state_message_to_a_bag(ros_env, tmp_path):
+def test_an_exploring_run_records_every_state_message_and_calibrates_the_models(
+        ros_env, tmp_path):
+    """The calibration workflow of a lab: record the exploring DL-MPC on a laser that is
+    not the nominal cavity, then `dlmpc-train adapt` makes a models folder from the bag
+    that the controller loads."""
+    from dlmpc_ros.control.factory import load_dlmpc
     from dlmpc_ros.recording import check_round_trips, read_bag
     bag = tmp_path / 'bag'
     proc = subprocess.run(
-        [sys.executable, '-m', 'dlmpc_ros.bringup', '--controller', 'fixed_best',
-         '--round-trips', '1500', '--record', str(bag), '--domain-id', ros_env['ROS_DOMAIN_ID'],
-         '--log-dir', str(tmp_path / 'logs')],
+        [sys.executable, '-m', 'dlmpc_ros.bringup', '--controller', 'explore', '--lockstep',
+         '--plant', 'pump=1.62', '--plant', 'loss=0.12', '--round-trips', '3000',
+         '--record', str(bag),
+         '--domain-id', ros_env['ROS_DOMAIN_ID'], '--log-dir', str(tmp_path / 'logs')],
         env=ros_env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     topics = read_bag(bag)
     check = check_round_trips(topics['/laser/state'].column('round_trip'))
-    assert check.first == 1 and check.last >= 1500 and check.contiguous
+    assert check.first == 1 and check.last >= 3000 and check.contiguous
     # the recorder stops last, so it holds everything the simulator published
     assert len(topics['/laser/sim_truth'].data) == check.count
     assert len(topics['/controller/status'].data) >= 10
+
+    adapted = tmp_path / 'adapted'
+    proc = subprocess.run(
+        [sys.executable, '-m', 'dlmpc_ros.cli.train', 'adapt', '--bag', str(bag), '--out',
+         str(adapted), '--quick', '--no-progress'],
+        env=ros_env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    report = json.loads((adapted / 'adapt.json').read_text())
+    assert report['pairs'] > 0 and report['round_trips_used'] >= 3000
+    controller = load_dlmpc(adapted)
+    assert controller.rotation_prior is not None and controller.planner is not None
 
 
 @pytest.mark.parametrize('delay', [0.3, 1.5, 4.0])
