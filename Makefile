@@ -8,7 +8,8 @@ OUT    ?= out
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export ROS_LOG_DIR ?= $(abspath $(OUT))/ros-log
 
-.PHONY: venv test demo evaluate evaluate-plants bench fuzz ros2cli lint data models clean
+.PHONY: venv test demo evaluate evaluate-plants evaluate-heldout ablation bench fuzz ros2cli \
+	lint data models clean
 
 venv: $(STAMP)
 
@@ -54,6 +55,31 @@ evaluate-plants: $(STAMP)
 	    $(foreach p,$(PLANTS),--plant-family $(p)) \
 	    $(foreach c,$(CONTROLLERS),--controller $(c)) --workers $(WORKERS) \
 	    --out $(OUT)/plants/lock
+
+# Issue 15's held-out benchmark (docs/adaptation.md): family plants 101-108, used for no
+# choice, two drifts, seeds 1-3, every controller; the lock benchmark on them and the
+# nominal cavity. About an hour on 2 cores; --resume keeps the runs already made.
+HELDOUT ?= 101 102 103 104 105 106 107 108
+evaluate-heldout: $(STAMP)
+	$(VENV)/bin/dlmpc-evaluate --fast --round-trips 20000 \
+	    $(foreach p,$(HELDOUT),--plant-family $(p)) \
+	    --scenario sinusoidal --scenario random_walk $(foreach s,$(SEEDS),--seed $(s)) \
+	    $(foreach c,$(CONTROLLERS),--controller $(c)) --workers $(WORKERS) \
+	    --resume --out $(OUT)/heldout/drift
+	$(VENV)/bin/dlmpc-evaluate --benchmark lock --starts 100 --nominal \
+	    $(foreach p,$(HELDOUT),--plant-family $(p)) \
+	    $(foreach c,$(CONTROLLERS),--controller $(c)) --workers $(WORKERS) \
+	    --out $(OUT)/heldout/lock
+
+# The ablation of docs/adaptation.md: the DL-MPC without each of its parts, on the nominal
+# cavity and the held-out plants (bench/ablation_variants.json; nominal-only pretraining
+# first makes its own predictor with bench/nominal_pretraining.py).
+ablation: $(STAMP)
+	$(PY) bench/nominal_pretraining.py --out $(OUT)/nominal-only
+	OUT=$(abspath $(OUT)) $(PY) bench/dlmpc_variants.py --variants bench/ablation_variants.json --nominal \
+	    $(foreach p,$(HELDOUT),--plant-family $(p)) --scenario sinusoidal \
+	    --scenario random_walk --seeds $(SEEDS) --workers $(WORKERS) \
+	    --out $(OUT)/ablation/ablation.json
 
 bench: $(STAMP)
 	$(PY) bench/bench_cavity.py --out $(OUT)/bench

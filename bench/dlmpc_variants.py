@@ -1,85 +1,129 @@
-"""Closed-loop ablation of DL-MPC settings: each variant on every scenario and seed.
+"""Closed-loop ablation of DL-MPC settings: each variant on every plant, scenario and seed.
 
 A variant is a set of :class:`DLMPCConfig` overrides; every run goes through
 ``dlmpc-evaluate --fast``'s own run (:func:`dlmpc_ros.evaluation.runs.run_fast`: same
-scenario presets, initial angles, servo limit and models), so a variant with no overrides
-reproduces the DL-MPC column of ``make evaluate``.
+scenario presets, initial angles, servo limit and models) and is divided by its plant's
+own envelope (the nominal tables for the nominal cavity, the cached per-plant envelope
+otherwise), so a variant with no overrides reproduces the DL-MPC column of
+``dlmpc-evaluate``.
 
 Usage::
 
     python bench/dlmpc_variants.py --variants variants.json --seeds 1 2 3 \\
-        --out bench/results/outer_loop.json --jobs 2
+        --nominal --plant-family 101 --plant-family 102 --scenario sinusoidal \\
+        --out bench/results/ablation.json --workers 2
 
-``variants.json`` maps names to overrides, e.g. ``{"shipped": {}, "monitored":
-{"monitor_prediction": true}, "no tracking": {"tracking": null}, "slow tracking":
-{"tracking": {"max_step": 0.015}}, "noisy": {"measurement_noise": 0.01}}`` (``tracking``
-takes the fields of :class:`~dlmpc_ros.control.tracking.TrackingConfig`;
-``measurement_noise`` is the run's relative noise on the measured E and M). Writes the
-runs' metrics (plus the fraction of periods in each mode) as JSON and a markdown table of
-mean O / O* (mean over seeds, min-max) beside it.
+``variants.json`` maps names to overrides, e.g. ``{"shipped": {}, "no planner":
+{"planner": null}, "no twin": {"tracking": {"mirror": false}}, "noisy":
+{"measurement_noise": 0.01}, "other models": {"models_dir": "out/models"}}``
+(``tracking``, ``acquisition`` and ``planner`` take the fields of their configs;
+``measurement_noise`` is the run's relative noise on the measured E and M;
+``models_dir`` a models folder, environment variables such as ``${OUT}`` expanded). Runs go on Dask (:func:`dlmpc_ros.scaleout.run_tasks`).
+Writes the runs' metrics (plus the fraction of periods in each mode) as JSON and a
+markdown table of mean O / O* per variant, plant group (the nominal cavity; the family
+plants pooled) and scenario (mean over plants and seeds, min-max of the runs).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
-from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from dlmpc_ros.scaleout import TaskFailure, default_workers, run_tasks
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = ('sinusoidal', 'chirp', 'random_walk', 'steps')
 
 
-def run_one(job: tuple[str, dict, str, int, int, str]) -> dict:
-    """One closed-loop run: (variant, overrides, scenario, seed, round trips, models)."""
+@dataclass(frozen=True)
+class VariantRun:
+    """One run of the ablation."""
+
+    variant: str
+    overrides: dict
+    plant: str            # 'nominal' or a family seed
+    scenario: str
+    seed: int
+    round_trips: int
+    models_dir: str
+
+
+def plant_and_envelope(plant: str, models_dir: Path) -> tuple[dict, dict]:
+    """The plant's physical parameters that differ from the nominal cavity and the
+    envelope its ratios divide by."""
+    from dlmpc_ros.core.plants import NOMINAL, PlantFamily, plant_parameters
+    from dlmpc_ros.learning.tables import load_baselines
+    from dlmpc_ros.training.envelope import cached_plant_envelope, draw_plant
+    tables = load_baselines(models_dir / 'oracle.npz')
+    if plant == 'nominal':
+        return {}, tables
+    cavity, _ = draw_plant(PlantFamily(), int(plant), tables)
+    nominal = plant_parameters(NOMINAL)
+    return ({k: v for k, v in plant_parameters(cavity).items() if v != nominal[k]},
+            cached_plant_envelope(cavity, tables))
+
+
+def run_one(job: VariantRun) -> dict:
+    """One closed-loop run of a variant."""
+    from dlmpc_ros.control.acquisition import AcquisitionConfig
     from dlmpc_ros.control.dlmpc_config import DLMPCConfig
     from dlmpc_ros.control.factory import load_dlmpc
     from dlmpc_ros.control.limits import AngleLimits
+    from dlmpc_ros.control.rotation_planner import PlannerConfig
     from dlmpc_ros.control.step import MODES
     from dlmpc_ros.control.tracking import TrackingConfig
     from dlmpc_ros.evaluation.metrics import run_metrics
     from dlmpc_ros.evaluation.runs import RunSpec, run_fast
-    from dlmpc_ros.learning.tables import load_baselines
 
-    name, overrides, scenario, seed, round_trips, models = job
-    overrides = dict(overrides)
+    overrides = dict(job.overrides)
     noise = float(overrides.pop('measurement_noise', 0.0))  # a run setting, not DLMPCConfig
-    if isinstance(overrides.get('tracking'), dict):  # from JSON: the tracker's fields
-        overrides['tracking'] = TrackingConfig(**overrides['tracking'])
-    spec = RunSpec(scenario, seed, 'dlmpc', round_trips=round_trips, measurement_noise=noise)
-    controller = load_dlmpc(Path(models), DLMPCConfig(limits=AngleLimits(max_step=spec.max_step),
-                                                      **overrides))
+    models = Path(os.path.expandvars(overrides.pop('models_dir', job.models_dir)))
+    for key, kind in (('tracking', TrackingConfig), ('acquisition', AcquisitionConfig),
+                      ('planner', PlannerConfig)):
+        if isinstance(overrides.get(key), dict):  # from JSON: the config's fields
+            overrides[key] = kind(**overrides[key])
+    plant, envelope = plant_and_envelope(job.plant, Path(job.models_dir))
+    spec = RunSpec(job.scenario, job.seed, 'dlmpc', round_trips=job.round_trips,
+                   measurement_noise=noise, plant=plant)
+    controller = load_dlmpc(models, DLMPCConfig(limits=AngleLimits(max_step=spec.max_step),
+                                                **overrides))
     started = time.monotonic()
-    record = run_fast(spec, Path(models), controller)
-    metrics = run_metrics(record, load_baselines(Path(models) / 'oracle.npz'))
+    record = run_fast(spec, models, controller)
+    metrics = run_metrics(record, envelope)
     modes = np.asarray(record.mode)
-    return {'variant': name, 'scenario': scenario, 'seed': seed,
-            'wall_seconds': round(time.monotonic() - started, 1),
+    return {'variant': job.variant, 'plant': job.plant, 'scenario': job.scenario,
+            'seed': job.seed, 'wall_seconds': round(time.monotonic() - started, 1),
             'mode_fractions': {m: float(np.mean(modes == i)) for i, m in enumerate(MODES)
                                if np.any(modes == i)},
             **{k: metrics[k] for k in ('oracle_ratio', 'locked_fraction',
-                                       'acquisition_round_trips', 'mean_O')}}
+                                       'acquisition_round_trips', 'mean_O',
+                                       'step_latency_ms_median')}}
 
 
-def table(runs: list[dict]) -> str:
-    """Markdown: variant x scenario, mean O / O* over seeds (min-max), and the share of
-    periods in the outer loop and in curve tracking."""
-    lines = ['| variant | ' + ' | '.join(SCENARIOS) + ' | outer loop share | track share |',
-             '|---' * (len(SCENARIOS) + 3) + '|']
+def table(runs: list[dict], scenarios: list[str]) -> str:
+    """Markdown: variant x (plant group, scenario), mean O / O* (min-max over runs)."""
+    groups = [g for g in ('nominal', 'family') if any(
+        (r['plant'] == 'nominal') == (g == 'nominal') for r in runs)]
+    columns = [(g, s) for g in groups for s in scenarios]
+    lines = ['| variant | ' + ' | '.join(
+        f'{"nominal" if g == "nominal" else "family plants"} {s}' for g, s in columns)
+        + ' | mean |', '|---' * (len(columns) + 2) + '|']
     for variant in dict.fromkeys(r['variant'] for r in runs):
-        cells, share = [], {'outer': [], 'track': []}
-        for scenario in SCENARIOS:
-            mine = [r for r in runs if r['variant'] == variant and r['scenario'] == scenario]
-            ratios = [r['oracle_ratio'] for r in mine]
-            for mode, values in share.items():
-                values += [r['mode_fractions'].get(mode, 0.0) for r in mine]
+        cells, means = [], []
+        for group, scenario in columns:
+            ratios = [r['oracle_ratio'] for r in runs if r['variant'] == variant
+                      and r['scenario'] == scenario
+                      and (r['plant'] == 'nominal') == (group == 'nominal')]
+            means += ratios
             cells.append(f'{np.mean(ratios):.3f} ({min(ratios):.3f}-{max(ratios):.3f})'
                          if ratios else '')
-        lines.append(f'| {variant} | ' + ' | '.join(cells) + ' | ' + ' | '.join(
-            f'{min(v):.2f}-{max(v):.2f}' for v in share.values()) + ' |')
+        lines.append(f'| {variant} | ' + ' | '.join(cells) + f' | {np.mean(means):.3f} |')
     return '\n'.join(lines) + '\n'
 
 
@@ -87,30 +131,37 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     p.add_argument('--variants', type=Path, required=True)
     p.add_argument('--seeds', type=int, nargs='+', default=[1, 2, 3])
+    p.add_argument('--scenario', action='append', choices=SCENARIOS,
+                   help='repeatable (default: all four)')
+    p.add_argument('--nominal', action='store_true',
+                   help='run the nominal cavity (the default without --plant-family)')
+    p.add_argument('--plant-family', type=int, action='append', default=[], metavar='SEED')
     p.add_argument('--round-trips', type=int, default=20000)
     p.add_argument('--models-dir', type=Path, default=ROOT / 'models')
     p.add_argument('--out', type=Path, default=ROOT / 'bench/results/dlmpc_variants.json')
-    p.add_argument('--jobs', type=int, default=2)
+    p.add_argument('--workers', type=int, default=default_workers())
     args = p.parse_args(argv)
     variants = json.loads(args.variants.read_text())
-    jobs = [(name, overrides, scenario, seed, args.round_trips, str(args.models_dir))
-            for name, overrides in variants.items() for seed in args.seeds
-            for scenario in SCENARIOS]
-    runs = []
-    with ProcessPoolExecutor(args.jobs) as pool:
-        for i, run in enumerate(pool.map(run_one, jobs), 1):
-            runs.append(run)
-            print(f"[{i}/{len(jobs)}] {run['variant']} {run['scenario']} seed {run['seed']}: "
-                  f"O/O* {run['oracle_ratio']:.3f}, locked {run['locked_fraction']:.2f}, "
-                  f"acquired {run['acquisition_round_trips']}, outer "
-                  f"{run['mode_fractions'].get('outer', 0.0):.2f} ({run['wall_seconds']} s)",
-                  flush=True)
+    scenarios = args.scenario or list(SCENARIOS)
+    plants = (['nominal'] if args.nominal or not args.plant_family else []) + \
+        [str(s) for s in args.plant_family]
+    for plant in plants:  # draws and envelopes once, here, before the runs share them
+        plant_and_envelope(plant, args.models_dir)
+    jobs = [VariantRun(name, overrides, plant, scenario, seed, args.round_trips,
+                       str(args.models_dir))
+            for name, overrides in variants.items() for plant in plants
+            for scenario in scenarios for seed in args.seeds]
+    results = run_tasks(run_one, jobs, args.workers, desc='variant runs')
+    failed = [r for r in results if isinstance(r, TaskFailure)]
+    runs = [r for r in results if not isinstance(r, TaskFailure)]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({'variants': variants, 'seeds': args.seeds,
-                                    'round_trips': args.round_trips, 'runs': runs}, indent=1))
-    args.out.with_suffix('.md').write_text(table(runs))
-    print(table(runs))
-    return 0
+                                    'plants': plants, 'round_trips': args.round_trips,
+                                    'failed': [str(f) for f in failed], 'runs': runs},
+                                   indent=1))
+    args.out.with_suffix('.md').write_text(table(runs, scenarios))
+    print(table(runs, scenarios))
+    return 1 if failed else 0
 
 
 if __name__ == '__main__':

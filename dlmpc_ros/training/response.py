@@ -30,7 +30,7 @@ import numpy as np
 from dlmpc_ros.core import checks
 from dlmpc_ros.core.cavity import Cavity
 from dlmpc_ros.core.fingerprint import fingerprint_arrays
-from dlmpc_ros.core.plants import PlantFamily
+from dlmpc_ros.core.plants import NOMINAL, PlantFamily
 from dlmpc_ros.scaleout import TaskFailure, run_tasks
 from dlmpc_ros.training import shards
 
@@ -60,6 +60,8 @@ class ResponseConfig:
     """Round trips at the curve point before the first step."""
     plants_per_task: int = 4
     """Plants per task of the scale-out."""
+    nominal_only: bool = False
+    """Every plant the nominal cavity (the nominal-only pretraining of the ablation)."""
 
     def __post_init__(self) -> None:
         checks.counts(self, 'plants', 'steps', 'hold', 'settle', 'plants_per_task')
@@ -99,7 +101,8 @@ def response_rows(task: ResponseTask) -> np.ndarray:
     base = curve_angles(task.grid, task.angles, u)
     rows = []
     for seed in task.seeds:
-        cavity = Cavity(family.draw(seed), batch=k.size, angles=base, birefringence=k)
+        plant = NOMINAL if cfg.nominal_only else family.draw(seed)
+        cavity = Cavity(plant, batch=k.size, angles=base, birefringence=k)
         cavity.run(cfg.settle)
         for i in range(cfg.steps + 1):
             theta = way * cfg.step * i

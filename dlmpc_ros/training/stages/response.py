@@ -122,28 +122,33 @@ def plan_figures(model: ResponseEnsemble, held_out: list[dict[str, np.ndarray]],
 
 
 def train_response_stage(ws: Workspace, seed: int, quick: bool = False,
-                         show_progress: bool = True, workers: int = 1) -> dict:
-    """Make the data if needed, fit the ensemble, write ``models/response.pt``; returns
-    the stage's metrics."""
+                         show_progress: bool = True, workers: int = 1,
+                         data_cfg: ResponseConfig | None = None) -> dict:
+    """Make the data if needed (``data_cfg``, default the shipped settings), fit the
+    ensemble, write ``models/response.pt``; returns the stage's metrics."""
     started = time.monotonic()
     grid, angles, _ = load_curve(ws.models_dir / FILE_NAME)
-    data_cfg = (ResponseConfig(plants=6, k_values=(-0.25, -0.1), offsets=(0.0,), steps=8,
-                               settle=150, plants_per_task=3)
-                if quick else ResponseConfig())
+    if data_cfg is None:
+        data_cfg = (ResponseConfig(plants=6, k_values=(-0.25, -0.1), offsets=(0.0,), steps=8,
+                                   settle=150, plants_per_task=3)
+                    if quick else ResponseConfig())
     meta = generate_response(ws.response, data_cfg, grid, angles, show_progress, workers)
     data = shards.load_dataset(ws.response)
     rule, settings = PairRule(), FitSettings(epochs=2 if quick else FitSettings.epochs)
     plants = np.unique(data['plant'])
-    n_held = max(1, int(round(settings.held_out * plants.size)))
-    held = set(plants[-n_held:].tolist())
-    train_x, train_y, held_profiles = [], [], []
+    n_held = max(1, int(round(settings.held_out * plants.size))) if plants.size > 1 else 0
+    held = set(plants[plants.size - n_held:].tolist())
+    train_x, train_y, held_profiles, train_profiles = [], [], [], []
     for profile in profiles(data):
         if int(profile['plant'][0]) in held:
             held_profiles.append(profile)
         else:
+            train_profiles.append(profile)
             x, y = profile_pairs(profile, rule)
             train_x.append(x)
             train_y.append(y)
+    judged_on = 'held-out plants' if held_profiles else 'the training plant (only one)'
+    held_profiles = held_profiles or train_profiles
     x, y = np.concatenate(train_x), np.concatenate(train_y)
     config = ResponseModelConfig(members=settings.members, hidden=settings.hidden,
                                  mean=x.mean(0).tolist(),
@@ -175,6 +180,7 @@ def train_response_stage(ws: Workspace, seed: int, quick: bool = False,
         'heldout_rmse_log_ratio': float(np.sqrt(np.mean((predicted - hy) ** 2))),
         'heldout_rmse_where_kept': float(np.sqrt(np.mean(((predicted - hy) ** 2)[hy > LOST]))),
         'heldout_plans': plan_figures(model, held_profiles, rule, settings),
+        'figures_on': judged_on,
         'wall_seconds': round(time.monotonic() - started, 1),
     }
     save_checkpoint(ws.model('response'), 'response', model.state_dict(), config.to_dict(),

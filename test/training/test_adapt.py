@@ -1,0 +1,73 @@
+"""Calibration from a bag: where the recorded angles lie on the rotated curve, the pairs
+that fine-tune the predictor, and the rotation prior (the bag itself: test_bringup)."""
+
+import numpy as np
+import pytest
+
+from dlmpc_ros.control.rotation import locate
+from dlmpc_ros.learning.curve import load_curve
+from dlmpc_ros.paths import models_dir
+from dlmpc_ros.training.adapt import AdaptConfig, laser_pairs, rotation_prior
+
+
+@pytest.fixture(scope='module')
+def curve():
+    grid, angles, _ = load_curve(models_dir() / 'track_curve.npz')
+    return grid, angles
+
+
+def test_recorded_angles_are_placed_on_the_rotated_curve_and_its_twin(curve):
+    grid, angles = curve
+    rng = np.random.default_rng(0)
+    index = rng.integers(0, grid.size, 20)
+    theta = rng.uniform(-0.5, 0.5, 20)
+    twin = rng.random(20) < 0.5
+    recorded = angles[index] + theta[:, None] + np.where(twin, np.pi / 2, 0.0)[:, None] \
+        + np.pi * rng.integers(-1, 2, (20, 4))          # any pi-equivalent a servo is at
+    branch, u, got, misfit = locate(recorded, grid, angles)
+    np.testing.assert_array_equal(branch, np.where(twin, -1, 1))
+    located = angles[np.searchsorted(grid, u - 1e-9)]      # the curve repeats in places
+    np.testing.assert_allclose(located, angles[index])
+    np.testing.assert_allclose(got, theta, atol=1e-9)
+    assert misfit.max() < 1e-9
+    far = locate(recorded + np.array([0.3, -0.3, 0.0, 0.0]), grid, angles)[3]
+    assert far.min() > 0.05                              # off the family: a large misfit
+
+
+def _run(grid, angles, thetas, u=-0.2, hold=3):
+    """Control periods at one curve point, each rotation held ``hold`` periods, with a
+    toy laser whose O peaks at a rotation of 0.15."""
+    point = angles[np.argmin(np.abs(grid - u))]
+    theta = np.repeat(np.asarray(thetas, float), hold)
+    objective = 0.2 - 0.5 * (theta - 0.15) ** 2
+    energy = np.full(theta.size, 3.0)
+    return {'round_trip': 10.0 * np.arange(1, theta.size + 1), 'E': energy,
+            'M': energy / objective, 'angles': point + theta[:, None]}
+
+
+def test_pairs_are_settled_states_at_the_same_point_and_their_change_of_log_o(curve):
+    grid, angles = curve
+    periods = _run(grid, angles, [0.0, 0.05, 0.1, 0.05])
+    x, y, states = laser_pairs(periods, grid, angles, AdaptConfig(window=4))
+    # the first period of each hold follows a change (the very first has no period
+    # before it): not settled; 2 settled per hold
+    assert states['u'].size == 8
+    assert np.all(np.abs(x[:, 0] + 0.2) < 1e-9)          # all at u = -0.2
+    for row, target in zip(x, y):
+        theta_a, delta = row[1], row[4]
+        o = lambda t: 0.2 - 0.5 * (t - 0.15) ** 2          # noqa: E731
+        assert target == pytest.approx(np.log(o(theta_a + delta) / o(theta_a)), abs=1e-9)
+    assert np.any(x[:, 4] > 0) and np.any(x[:, 4] == 0)  # turns and holds
+    assert np.all(np.abs(x[:, 4]) <= 0.1 + 1e-9)
+
+
+def test_the_rotation_prior_takes_the_best_recorded_rotation_near_each_knot(curve):
+    grid, angles = curve
+    periods = _run(grid, angles, [0.0, 0.1, 0.2, 0.15, 0.3], hold=4)
+    _, _, states = laser_pairs(periods, grid, angles, AdaptConfig())
+    knots = np.linspace(-0.3, 0.3, 13)
+    values = rotation_prior(states, knots, AdaptConfig(prior_samples=5))
+    assert values[np.argmin(np.abs(knots + 0.2))] == pytest.approx(0.15)
+    assert np.count_nonzero(values) == 1                # no data elsewhere: 0 there
+    few = rotation_prior(states, knots, AdaptConfig(prior_samples=1000))
+    assert not np.any(few)
