@@ -50,7 +50,7 @@ from dlmpc_ros.evaluation.report import (lock_table, measure, summary_line, writ
                                          write_summary)
 from dlmpc_ros.evaluation.record import RunRecord
 from dlmpc_ros.evaluation.runs import RunSpec, RunTask, run_spec, run_task
-from dlmpc_ros.learning.checkpoint import ModelFileError
+from dlmpc_ros.learning.model_files import ModelFileError
 from dlmpc_ros.learning.tables import load_baselines
 from dlmpc_ros.paths import models_dir as default_models_dir
 from dlmpc_ros.scaleout import TaskFailure, default_workers, run_tasks

@@ -25,7 +25,7 @@ import sys
 import time
 from pathlib import Path
 
-from dlmpc_ros.learning.checkpoint import ModelFileError
+from dlmpc_ros.learning.model_files import ModelFileError
 from dlmpc_ros.scaleout import default_workers
 from dlmpc_ros.training.workspace import Workspace
 

@@ -1,42 +1,40 @@
-"""The birefringence estimator at run time: the VAE over the latest measurements."""
+"""The birefringence estimator at run time: the VAE's encoder over the latest measurements
+(numpy only: :mod:`dlmpc_ros.learning.encoder`)."""
 
 from __future__ import annotations
 
 from collections import deque
 
 import numpy as np
-import torch
 
-from dlmpc_ros.learning.vae import ConditionalVAE
+from dlmpc_ros.learning.encoder import Encoder
 
 
 class SurrogateEstimator:
-    """Feeds a sliding window of measurements to the VAE encoder.
+    """Feeds a sliding window of measurements to the VAE's encoder.
 
     Parameters
     ----------
-    vae
-        The trained estimator (its config says the window length w).
+    encoder
+        The trained estimator's encoder (its window length w).
     """
 
-    def __init__(self, vae: ConditionalVAE) -> None:
-        self.vae = vae
-        self.window: deque[np.ndarray] = deque(maxlen=vae.config.window)
+    def __init__(self, encoder: Encoder) -> None:
+        self.encoder = encoder
+        self.window: deque[np.ndarray] = deque(maxlen=encoder.window)
 
     @property
     def ready(self) -> bool:
         return len(self.window) == self.window.maxlen
 
-    def update(self, measurement: np.ndarray) -> tuple[float, np.ndarray] | None:
+    def update(self, measurement: np.ndarray) -> tuple[float, np.ndarray]:
         """Add a measurement (6,) ``(E, M, alpha[4])``; return ``(surrogate, latent mean)``
-        once w measurements are in (until then the window is padded with the oldest)."""
+        (until w measurements are in, the window is padded with the oldest)."""
         self.window.append(np.asarray(measurement, np.float32))
         rows = list(self.window)
         rows = [rows[0]] * (self.window.maxlen - len(rows)) + rows
-        x = torch.as_tensor(np.stack(rows))[None]                       # (1, w, 6)
-        with torch.no_grad():
-            mu, _ = self.vae.encode(x)
-        return float(self.vae.surrogate(x)[0]), mu[0].numpy()
+        x = np.stack(rows)[None]                                        # (1, w, 6)
+        return float(self.encoder.surrogate(x)[0]), self.encoder.mean(x)[0]
 
     def reset(self) -> None:
         self.window.clear()

@@ -31,11 +31,10 @@ BASELINES_FILE = 'oracle.npz'
 
 
 def load_estimator(models_dir: Path) -> SurrogateEstimator:
-    """The run-time VAE estimator from ``models_dir/vae.pt``."""
+    """The run-time VAE estimator from ``models_dir/vae_encoder.npz`` (numpy; no torch)."""
     from dlmpc_ros.control.estimator import SurrogateEstimator
-    from dlmpc_ros.learning.vae import load_vae
-    vae, _ = load_vae(Path(models_dir) / 'vae.pt')
-    return SurrogateEstimator(vae)
+    from dlmpc_ros.learning.encoder import load_encoder
+    return SurrogateEstimator(load_encoder(Path(models_dir)))
 
 
 def load_dlmpc(models_dir: Path, config: DLMPCConfig | None = None) -> DLMPCController:

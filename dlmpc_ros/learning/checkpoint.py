@@ -13,18 +13,11 @@ from typing import Any
 
 import torch
 
+from dlmpc_ros.learning.model_files import KINDS, ModelFileError, regenerate_hint
+
 SCHEMA_VERSION = 1
-#: Model kinds and what they are called in messages.
-KINDS = {'vae': 'VAE estimator', 'kmap': 'K-to-angles map', 'mprnn': 'MP-RNN',
-         'response': 'steady-response predictor'}
-
-
-class ModelFileError(RuntimeError):
-    """A model file is missing, unreadable, of the wrong kind or of another schema."""
-
-
-def regenerate_hint(kind: str) -> str:
-    return f'regenerate it with `dlmpc-train {kind}` (see models/MODEL_CARD.md)'
+__all__ = ['KINDS', 'ModelFileError', 'SCHEMA_VERSION', 'load_checkpoint', 'load_model',
+           'regenerate_hint', 'save_checkpoint']
 
 
 def save_checkpoint(path: str | Path, kind: str, state_dict: dict[str, torch.Tensor],

@@ -24,6 +24,8 @@ from torch import nn
 
 from dlmpc_ros.core import checks
 from dlmpc_ros.learning.checkpoint import load_model
+from dlmpc_ros.learning.encoder import FILE_NAME as ENCODER_FILE
+from dlmpc_ros.learning.encoder import save_encoder
 from dlmpc_ros.learning.features import N_FEATURES, Normalizer, angle_features, features
 from dlmpc_ros.learning.seeding import reset_linear_layers
 
@@ -133,6 +135,19 @@ def load_vae(path: str | Path) -> tuple[ConditionalVAE, dict]:
 def surrogate_of(vae: ConditionalVAE, measured: np.ndarray) -> np.ndarray:
     """Surrogate (B,) of measurement windows (B, w, 6)."""
     return vae.surrogate(torch.as_tensor(measured, dtype=torch.float32)).numpy()
+
+
+def export_encoder(vae: ConditionalVAE, models_dir: Path, note: dict) -> Path:
+    """Write the encoder of ``vae`` as ``models_dir/vae_encoder.npz`` (plain arrays, read
+    without torch by :func:`dlmpc_ros.learning.encoder.load_encoder`)."""
+    layers = [(m.weight.detach().numpy(), m.bias.detach().numpy())
+              for m in vae.encoder if isinstance(m, nn.Linear)]
+    c, n = vae.config, vae.norm
+    settings = {'window': c.window, 'latent': c.latent, 'surrogate_dim': c.surrogate_dim,
+                'surrogate_mean': c.surrogate_mean, 'surrogate_std': c.surrogate_std,
+                'e_mean': n.e_mean, 'e_std': n.e_std, 'logm_mean': n.logm_mean,
+                'logm_std': n.logm_std}
+    return save_encoder(Path(models_dir) / ENCODER_FILE, layers, settings, note)
 
 
 def windows(measured: np.ndarray, window: int) -> np.ndarray:

@@ -20,7 +20,7 @@ from std_msgs.msg import Float64MultiArray
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.control.factory import CONTROLLERS, make_baseline
 from dlmpc_ros.control.ga import GAConfig
-from dlmpc_ros.learning.checkpoint import ModelFileError
+from dlmpc_ros.learning.model_files import ModelFileError
 from dlmpc_ros.paths import models_dir
 from dlmpc_ros.ros import params
 from dlmpc_ros.ros.controller_base import ControllerNodeBase

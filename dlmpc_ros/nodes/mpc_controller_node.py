@@ -21,7 +21,7 @@ from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.factory import load_dlmpc
 from dlmpc_ros.control.rotation_planner import PlannerConfig
 from dlmpc_ros.control.tracking import TrackingConfig
-from dlmpc_ros.learning.checkpoint import ModelFileError
+from dlmpc_ros.learning.model_files import ModelFileError
 from dlmpc_ros.paths import models_dir
 from dlmpc_ros.ros import params
 from dlmpc_ros.ros.controller_base import ControllerNodeBase

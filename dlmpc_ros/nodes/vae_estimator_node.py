@@ -19,7 +19,7 @@ from std_msgs.msg import Float64MultiArray
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.control.factory import load_estimator
 from dlmpc_ros.health import CounterWindow, Findings, Health
-from dlmpc_ros.learning.checkpoint import ModelFileError
+from dlmpc_ros.learning.model_files import ModelFileError
 from dlmpc_ros.paths import models_dir
 from dlmpc_ros.ros import params
 from dlmpc_ros.ros.diagnostics import DiagnosticsPublisher
@@ -27,7 +27,8 @@ from dlmpc_ros.ros.io import QOS, vector_message
 
 DEFAULTS: dict[str, object] = {'period': 10, 'models_dir': ''}
 DESCRIPTIONS = {'period': 'control period P [round trips]: one estimate per P round trips',
-                'models_dir': 'directory holding vae.pt (empty: the installed models/)'}
+                'models_dir': 'directory holding vae_encoder.npz (empty: the installed '
+                              'models/)'}
 
 
 class VAEEstimatorNode(Node):
@@ -53,7 +54,7 @@ class VAEEstimatorNode(Node):
         self.create_subscription(Float64MultiArray, itf.TOPIC_STATE, self._on_state,
                                  QOS[itf.TOPIC_STATE])
         self._fields = [*itf.ESTIMATE_FIELDS,
-                        *(f'z{i + 1}' for i in range(self.estimator.vae.config.latent))]
+                        *(f'z{i + 1}' for i in range(self.estimator.encoder.latent))]
 
     def _on_state(self, msg: Float64MultiArray) -> None:
         if not itf.usable_state(msg.data, self._warn):
@@ -87,8 +88,6 @@ class VAEEstimatorNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    import torch
-    torch.set_num_threads(1)  # small models: threads only contend with the other nodes
     sys.exit(params.run_node(VAEEstimatorNode, args))
 
 

@@ -63,13 +63,13 @@ CASES = {
     'estimator-period-type': (ESTIMATOR, ['-p', 'period:=2.5'], ["parameter 'period'",
                                                                  "expecting type 'INTEGER'"]),
     'estimator-no-models': (ESTIMATOR, ['-p', 'models_dir:={tmp}/nowhere'],
-                            ['vae.pt is missing', 'dlmpc-train vae']),
+                            ['vae_encoder.npz is missing', 'dlmpc-train vae']),
     'estimator-corrupt': (ESTIMATOR, ['-p', 'models_dir:={models}'],
-                          ['vae.pt is corrupt', 'dlmpc-train vae']),
+                          ['vae_encoder.npz cannot be read', 'dlmpc-train vae']),
     'estimator-truncated': (ESTIMATOR, ['-p', 'models_dir:={models}'],
-                            ['vae.pt is corrupt', 'dlmpc-train vae']),
+                            ['vae_encoder.npz cannot be read', 'dlmpc-train vae']),
     'estimator-wrong-kind': (ESTIMATOR, ['-p', 'models_dir:={models}'],
-                             ["holds 'kmap', not a vae model", 'dlmpc-train vae']),
+                             ['vae_encoder.npz is malformed', 'dlmpc-train vae']),
     # mpc_controller
     'mpc-negative-period': (MPC, ['-p', 'period:=-1'],
                             ['period = -1 is outside its range [1, 1e+06]', '[round trips]']),
@@ -120,12 +120,12 @@ def _damaged_models(case: str, tmp: Path) -> Path:
     models = tmp / f'models-{case}'
     shutil.copytree(ROOT / 'models', models, ignore=shutil.ignore_patterns('figures'))
     if case == 'estimator-corrupt':
-        (models / 'vae.pt').write_bytes(os.urandom(4096))
+        (models / 'vae_encoder.npz').write_bytes(os.urandom(4096))
     elif case == 'estimator-truncated':
-        data = (models / 'vae.pt').read_bytes()
-        (models / 'vae.pt').write_bytes(data[:len(data) // 2])
+        data = (models / 'vae_encoder.npz').read_bytes()
+        (models / 'vae_encoder.npz').write_bytes(data[:len(data) // 2])
     elif case == 'estimator-wrong-kind':
-        shutil.copy(models / 'kmap.pt', models / 'vae.pt')
+        shutil.copy(models / 'track_curve.npz', models / 'vae_encoder.npz')
     elif case == 'mpc-corrupt':
         (models / 'kmap.pt').write_bytes(b'\x00garbage' * 512)
     elif case == 'mpc-no-curve':

@@ -109,8 +109,8 @@ def test_train_command_builds_every_model_file_and_the_card(quick_data, tmp_path
     models = tmp_path / 'models'
     assert train_main(['all', '--quick', '--no-progress', '--workers', '1', '--data-dir',
                        str(quick_data), '--models-dir', str(models)]) == 0
-    for name in ('vae.pt', 'kmap.pt', 'mprnn.pt', 'track_curve.npz', 'response.pt',
-                 'metrics.json', 'MODEL_CARD.md'):
+    for name in ('vae.pt', 'vae_encoder.npz', 'kmap.pt', 'mprnn.pt', 'track_curve.npz',
+                 'response.pt', 'metrics.json', 'MODEL_CARD.md'):
         assert (models / name).is_file(), name
     kmap, _ = load_kmap(models / 'kmap.pt')
     model = load_mprnn(models / 'mprnn.pt', kmap=kmap)
@@ -139,3 +139,25 @@ def test_train_command_says_how_to_make_missing_inputs(tmp_path, capsys):
     assert train_main(['kmap', '--data-dir', str(tmp_path), '--models-dir',
                        str(tmp_path)]) == 2
     assert 'dlmpc-train vae' in capsys.readouterr().err
+
+
+def test_the_numpy_encoder_gives_the_vae_surrogate_without_torch(tmp_path):
+    """The estimator node loads vae_encoder.npz (no torch); it must say what vae.pt says."""
+    import subprocess
+    import sys
+
+    from dlmpc_ros.learning.encoder import load_encoder
+    from dlmpc_ros.learning.vae import export_encoder
+    vae = ConditionalVAE(VAEConfig(window=3, surrogate_dim=1, surrogate_mean=0.2,
+                                   surrogate_std=1.5), torch.Generator().manual_seed(0))
+    export_encoder(vae, tmp_path, {'test': True})
+    encoder = load_encoder(tmp_path)
+    rng = np.random.default_rng(0)
+    measured = np.concatenate([rng.uniform(1, 5, (40, 3, 1)), rng.uniform(10, 200, (40, 3, 1)),
+                               rng.uniform(-3, 3, (40, 3, 4))], axis=-1).astype(np.float32)
+    np.testing.assert_allclose(encoder.surrogate(measured),
+                               vae.surrogate(torch.as_tensor(measured)).numpy(), atol=1e-5)
+    code = ('import sys; import dlmpc_ros.nodes.vae_estimator_node, '
+            'dlmpc_ros.nodes.baseline_controller_node; print("torch" in sys.modules)')
+    assert subprocess.run([sys.executable, '-c', code], capture_output=True,
+                          text=True).stdout.strip() == 'False'

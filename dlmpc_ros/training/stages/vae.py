@@ -21,8 +21,8 @@ from dlmpc_ros.core.fingerprint import fingerprint_arrays
 from dlmpc_ros.learning.checkpoint import save_checkpoint
 from dlmpc_ros.learning.features import Normalizer, measurements
 from dlmpc_ros.learning.fit import fit
-from dlmpc_ros.learning.vae import (ConditionalVAE, VAEConfig, steady_windows, surrogate_of,
-                                    windows)
+from dlmpc_ros.learning.vae import (ConditionalVAE, VAEConfig, export_encoder, steady_windows,
+                                    surrogate_of, windows)
 from dlmpc_ros.training import shards
 from dlmpc_ros.training.trajectories import load_trajectories
 from dlmpc_ros.training.workspace import Workspace
@@ -104,6 +104,8 @@ def train_vae_stage(ws: Workspace, seed: int = 0, epochs: int = 25,
     model = best['model']
     save_checkpoint(ws.model('vae'), 'vae', model.state_dict(), model.config.to_dict(),
                     metrics, fingerprint)
+    export_encoder(model, ws.models_dir, {'made_by': 'dlmpc-train vae', 'of': 'vae.pt',
+                                          'data_fingerprint': fingerprint})
     plot_latents(model, test, k_test, ws.figures / 'vae_surrogate.png')
     return metrics
 
