@@ -19,9 +19,10 @@ Usage::
 (``tracking``, ``acquisition`` and ``planner`` take the fields of their configs;
 ``measurement_noise`` is the run's relative noise on the measured E and M;
 ``models_dir`` a models folder, environment variables such as ``${OUT}`` expanded).
-Runs go on Dask (:func:`dlmpc_ros.scaleout.run_tasks`). Writes the runs' metrics (plus the fraction of periods in each mode) as JSON and a
-markdown table of mean O / O* per variant, plant group (the nominal cavity; the family
-plants pooled) and scenario (mean over plants and seeds, min-max of the runs).
+Runs go on Dask (:func:`dlmpc_ros.scaleout.run_tasks`). Writes the runs' metrics (plus
+the fraction of periods in each mode) as JSON and a markdown table of mean O / O* per
+variant, plant group (the nominal cavity; the family plants pooled) and scenario (mean
+over plants and seeds, min-max of the runs).
 """
 
 from __future__ import annotations
