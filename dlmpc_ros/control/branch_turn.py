@@ -125,7 +125,8 @@ class BranchTurn:
                 self._checked.append(float(objective))
             if len(self._checked) < cfg.verify:
                 return None, ''
-            if np.median(self._checked) >= (1 + cfg.branch_gain) * self._before:
+            settled = self._checked[-max(1, cfg.verify // 2):]  # the later half: settled
+            if np.median(settled) >= (1 + cfg.branch_gain) * self._before:
                 self._phase, self.wait = '', cfg.turn_cooldown
                 self.made += 1
                 return None, KEPT

@@ -18,9 +18,10 @@ class AngleLimits:
     goal by at most ``max_step`` per period.
     """
 
-    low: float = -math.pi
-    """Lowest angle a servo may be sent to [rad]."""
-    high: float = math.pi
+    low: float = -2 * math.pi
+    """Lowest angle a servo may be sent to [rad] (rotation mounts turn continuously; two
+    turns of range keep the DL-MPC's quarter turns between branches clear of the ends)."""
+    high: float = 2 * math.pi
     """Highest angle a servo may be sent to [rad]."""
     max_step: float = 0.25
     """Largest change of any angle per control period [rad] (servo speed)."""
@@ -39,11 +40,13 @@ class AngleLimits:
         current angle; the servo moves toward it by at most ``max_step``.
         """
         current = np.clip(np.asarray(current, float), self.low, self.high)
-        shifts = math.pi * np.arange(-3, 4)[:, None]                  # (7, 1)
-        options = np.asarray(wanted, float)[None, :] + shifts         # (7, 4)
-        inside = (options >= self.low) & (options <= self.high)
-        distance = np.where(inside, np.abs(options - current), np.inf)
-        goal = options[np.argmin(distance, axis=0), np.arange(current.size)]
-        reachable = np.isfinite(distance.min(axis=0))
+        wanted = np.asarray(wanted, float)
+        goal = wanted + math.pi * np.round((current - wanted) / math.pi)  # nearest of all
+        # beyond a limit: the equivalent just inside it (the nearest inside the range)
+        goal = np.where(goal > self.high, goal - math.pi * np.ceil((goal - self.high) / math.pi),
+                        goal)
+        goal = np.where(goal < self.low, goal + math.pi * np.ceil((self.low - goal) / math.pi),
+                        goal)
+        reachable = (goal >= self.low) & (goal <= self.high)   # a range narrower than pi
         goal = np.where(reachable, goal, np.clip(wanted, self.low, self.high))
         return current + np.clip(goal - current, -self.max_step, self.max_step)

@@ -23,10 +23,10 @@ The curve is best for K < 0 only: the cavity's mirror symmetry
 turned by a quarter turn), which is as good at K as the curve is at -K. The tracker
 changes branch (:class:`~dlmpc_ros.control.branch_turn.BranchTurn`, a turn that keeps
 the pulse and is taken back unless the other branch is better) when its estimate leaves
-its branch's side by ``mirror_margin``. (Trial turns on the evidence of O alone, when O
-fell 4 % under its best since the branch was chosen or every 600 periods, cost more than
-they found on the family plants the settings were chosen on: mean ratio 0.915 against
-0.921 without, plants 1-8 and the nominal cavity, two drifts, seeds 1-3.)
+its branch's side by ``mirror_margin``, or when O has fallen ``trial_drop`` under the best
+it measured since the branch was last chosen: on a laser that is not the nominal cavity
+the best point of the curve often sits at its end whatever K is, the estimate then does
+not say which side of 0 K is on, and the measured O does.
 
 The curve was made on the nominal cavity; on the laser in front of it the curve is
 turned by a learned rotation theta(u) (all four angles together, a different turn at
@@ -117,11 +117,15 @@ class TrackingConfig:
     is losing the pulse: the tracker turns back (and turns the other way next time)."""
     turn_cooldown: int = 100
     """Periods after a turn (made or given up) before the next may start."""
-    verify: int = 3
-    """Periods after a turn whose median O decides whether the new branch is kept."""
+    verify: int = 6
+    """Periods after a turn; the median O of their later half decides whether the new
+    branch is kept."""
     branch_gain: float = 0.005
     """Relative gain of O the new branch must bring to be kept (-1 < branch_gain; a
     negative value keeps a turn that lost less than that)."""
+    trial_drop: float = 0.08
+    """Relative fall of O under its best since the branch was chosen that makes the
+    tracker try the other branch (0: only the estimate decides)."""
     plan_every: int = 4
     """Dither blocks between two requests for a turn of the curve (with a planner)."""
     rotation_knots: int = 13
@@ -148,10 +152,11 @@ class TrackingConfig:
                              'survey periods >= 1')
         if not (self.mirror_margin >= 0 and 0 < self.turn_step <= QUARTER_TURN
                 and self.free_turn >= 0 and 0 < self.turn_guard <= 1
-                and self.turn_cooldown >= 1 and self.verify >= 1 and self.branch_gain > -1):
+                and self.turn_cooldown >= 1 and self.verify >= 1 and self.branch_gain > -1
+                and 0 <= self.trial_drop < 1):
             raise ValueError('need mirror_margin >= 0, 0 < turn_step <= pi/2, free_turn >= 0, '
-                             '0 < turn_guard <= 1, turn_cooldown >= 1, verify >= 1 and '
-                             'branch_gain > -1')
+                             '0 < turn_guard <= 1, turn_cooldown >= 1, verify >= 1, '
+                             'branch_gain > -1 and 0 <= trial_drop < 1')
         if not (self.plan_every >= 1 and self.rotation_knots >= 2 and self.rotation_limit > 0):
             raise ValueError('need plan_every >= 1, rotation_knots >= 2 and '
                              'rotation_limit > 0')
@@ -277,18 +282,21 @@ class CurveTracker:
         self._in_block += 1
         if self._in_block >= self.config.block:
             self._end_block(float(objective))
-            if (current is not None and self._wants_other_branch()
+            if (current is not None and self._wants_other_branch(float(objective))
                     and self.turner.begin(np.asarray(current, float),
                                           self.branch * self.estimate, float(objective))):
                 return self._turning(float(objective))
         return self._command()
 
-    def _wants_other_branch(self) -> bool:
-        """Whether the estimate has gone past the margin onto the other branch's side (and
-        no turn is cooling down)."""
+    def _wants_other_branch(self, objective: float) -> bool:
+        """Whether to try the other branch: the estimate has gone past the margin onto its
+        side, or O has fallen ``trial_drop`` under the best since the branch was chosen
+        (and no turn is cooling down)."""
         cfg = self.config
-        return (cfg.mirror and self.turner.wait == 0
-                and self.branch * self.estimate > cfg.mirror_margin)
+        if not cfg.mirror or self.turner.wait > 0:
+            return False
+        return (self.branch * self.estimate > cfg.mirror_margin
+                or objective < (1 - cfg.trial_drop) * self._branch_best)
 
     def _turning(self, objective: float) -> np.ndarray:
         """A period of a change of branch: the turn's command (or, while the new branch is
@@ -304,6 +312,7 @@ class CurveTracker:
             self.estimate = self._estimate_before_turn
         if event in (KEPT, RETURNED, ABANDONED):
             self._restart_dither()
+            self._branch_best = 0.0  # the branch is chosen anew: its best from here on
             self._age = min(self._age, self.config.settle)  # let the guard settle again
         return self.curve(self.estimate) if command is None else command
 
@@ -359,6 +368,7 @@ class CurveTracker:
         # periods since entry; consecutive periods under the guard and under the survey level
         self._age, self._low, self._short = 0, 0, 0
         self._settling: list[float] = []  # O measured while settling after entry
+        self._branch_best = 0.0  # best block O since the branch was last chosen
         self._survey: list[float] = []  # survey points still to visit
         # the start point on the branch the tracker is on (its twin on the mirror branch)
         self.estimate = self.branch * float(np.clip(self.config.start, self.grid[0],
@@ -391,6 +401,8 @@ class CurveTracker:
         self._in_block = 0
         self._block_count += 1
         self._sign = -self._sign
+        if self._age > cfg.settle and cfg.trial_drop > 0 and np.isfinite(objective):
+            self._branch_best = max(self._branch_best, objective)
         if len(self._blocks) == 3 and self._age > cfg.settle:
             (_, before), (sign, middle), (_, after) = self._blocks
             difference = sign * (middle - 0.5 * (before + after))   # O(+) - O(-)

@@ -127,7 +127,8 @@ def test_interrupt_stops_tracking():
     assert [tracker.step(0.2) is None for _ in range(4)] == [True, True, True, False]
 
 
-def _mirrored_objective(cmd: np.ndarray, k: float, angles: np.ndarray = ANGLES) -> float:
+def _mirrored_objective(cmd: np.ndarray, k: float, angles: np.ndarray = ANGLES,
+                        curvature: float = 0.6) -> float:
     """A toy laser with the cavity's mirror symmetry: the curve c is best for K < 0, its
     twin c(-s) + pi/2 (all four angles a quarter turn on) for K > 0. Half-way round
     costs O (nothing at K = 0, where turning is a symmetry): a little on one side of the
@@ -137,7 +138,7 @@ def _mirrored_objective(cmd: np.ndarray, k: float, angles: np.ndarray = ANGLES) 
     u = (cmd[0] - theta) / 2                      # the curve point that was turned
 
     def on_curve(s: float, kk: float) -> float:
-        return 0.2 - 0.6 * (s - kk) ** 2 - 0.1 * max(kk, 0.0)
+        return 0.2 - curvature * (s - kk) ** 2 - 0.1 * max(kk, 0.0)
     w = np.sin(theta) ** 2                        # 0 on the curve, 1 on the twin
     mixed = (1 - w) * on_curve(u, k) + w * on_curve(u, -k)
     wrong_way = k * (np.mod(theta, np.pi) - np.pi / 2) < 0
@@ -146,7 +147,7 @@ def _mirrored_objective(cmd: np.ndarray, k: float, angles: np.ndarray = ANGLES) 
 
 
 def _drive_mirrored(tracker: CurveTracker, k_of_period, periods: int,
-                    angles: np.ndarray = ANGLES):
+                    angles: np.ndarray = ANGLES, curvature: float = 0.6):
     """Feed the tracker the mirrored toy's O and the angles it ran with; (O, commands,
     branch) per period."""
     o, current, objectives, commands, branch = 0.2, None, [], [], []
@@ -155,7 +156,7 @@ def _drive_mirrored(tracker: CurveTracker, k_of_period, periods: int,
         if cmd is not None:  # through the servo limits, as the supervisor sends it
             current = tracker.limits.apply(cmd if current is None else current, cmd)
             cmd = current
-            o = _mirrored_objective(cmd, k_of_period(t), angles)
+            o = _mirrored_objective(cmd, k_of_period(t), angles, curvature)
         objectives.append(o)
         commands.append(current)
         branch.append(tracker.branch)
@@ -180,6 +181,21 @@ def test_tracker_turns_to_the_mirror_twin_when_k_drifts_through_zero():
     plain = CurveTracker(GRID, ANGLES, threshold=0.1, config=replace(cfg, mirror=False))
     o_plain, _, _ = _drive_mirrored(plain, drift, 3000)
     assert plain.branch == 1 and np.mean(o_plain[-100:]) < 0.186
+
+
+def test_where_the_estimate_says_nothing_a_fall_of_o_makes_the_tracker_try_the_twin():
+    """A laser whose O does not change along the curve (on other cavities the best point
+    often sits at the curve's end whatever K is): the estimate never leaves its start, K
+    drifts through 0, O falls on the curve, and the tracker tries the twin and keeps it."""
+    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1)
+    drift = lambda t: -0.15 + 0.35 * min(t / 2500, 1.0)          # noqa: E731
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
+    o, _, branch = _drive_mirrored(tracker, drift, 3000, curvature=0.0)
+    assert tracker.branch == -1 and tracker.turner.made >= 1
+    assert np.mean(o[-100:]) > 0.195                    # the twin's 0.2, not the curve's 0.18
+    silent = CurveTracker(GRID, ANGLES, threshold=0.1, config=replace(cfg, trial_drop=0.0))
+    o_silent, _, _ = _drive_mirrored(silent, drift, 3000, curvature=0.0)
+    assert silent.branch == 1 and np.mean(o_silent[-100:]) < 0.185
 
 
 def test_a_turn_that_loses_the_pulse_is_turned_back_and_tried_the_other_way():
@@ -224,7 +240,8 @@ def test_a_turn_stays_inside_the_servo_limits():
                                  dict(survey_ratio=0), dict(survey_spacing=0),
                                  dict(survey_dwell=0), dict(mirror_margin=-0.1),
                                  dict(turn_step=0), dict(turn_step=2.0),
-                                 dict(turn_guard=0), dict(turn_cooldown=0)])
+                                 dict(turn_guard=0), dict(turn_cooldown=0),
+                                 dict(trial_drop=1.0), dict(trial_drop=-0.1)])
 def test_bad_tracking_settings_are_rejected(bad):
     with pytest.raises(ValueError):
         TrackingConfig(**bad)
