@@ -84,9 +84,9 @@ class AdaptConfig:
 def laser_periods(bag: Path, cfg: AdaptConfig) -> dict[str, np.ndarray]:
     """The bag's ``/laser/state`` at the end of every control period: ``round_trip``,
     ``E``, ``M`` (n,) and ``angles`` (n, 4)."""
-    topic = read_bag(bag, [itf.STATE]).get(itf.STATE)
+    topic = read_bag(bag, [itf.TOPIC_STATE]).get(itf.TOPIC_STATE)
     if topic is None or not len(topic):
-        raise FileNotFoundError(f'{bag} has no {itf.STATE} messages to calibrate from')
+        raise FileNotFoundError(f'{bag} has no {itf.TOPIC_STATE} messages to calibrate from')
     data = topic.data
     round_trip = data[:, 0]
     keep = np.isfinite(data[:, :12]).all(axis=1) & (round_trip % cfg.period == 0)

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from dlmpc_ros import interfaces as itf
+from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.core.drift import make_scenario
 from test.nodes.rosutil import NodeProcess, Probe
 
@@ -244,7 +245,7 @@ def test_mpc_controller(ros_env, tmp_path, probe):
             probe.spin_until(lambda: status and status[-1].data[0] == round_trip,  # noqa: B023
                              30, f'the decision of round trip {round_trip}')
         _still_controls(probe, fuzz, status, round_trip, estimate)
-        fuzz.check_published(-math.pi, math.pi)
+        fuzz.check_published(AngleLimits().low, AngleLimits().high)
     finally:
         code = node.stop()
     fuzz.check_log(node, code, [itf.TOPIC_STATE, itf.TOPIC_ESTIMATE])
@@ -308,7 +309,7 @@ def test_baseline_controller(ros_env, tmp_path, probe, name):
             probe.spin_until(lambda: status and status[-1].data[0] == round_trip,  # noqa: B023
                              30, f'the decision of round trip {round_trip}')
         _still_controls(probe, fuzz, status, round_trip)
-        fuzz.check_published(-math.pi, math.pi)
+        fuzz.check_published(AngleLimits().low, AngleLimits().high)
     finally:
         code = node.stop()
     fuzz.check_log(node, code, topics)
