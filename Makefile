@@ -18,6 +18,7 @@ $(STAMP): requirements.txt setup.py
 	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.txt
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
 	$(PY) -c "from dlmpc_ros.core.cavity import compile_kernels; compile_kernels()"
+	$(PY) -m compileall -q dlmpc_ros
 	touch $(STAMP)
 
 test: $(STAMP)
