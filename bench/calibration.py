@@ -42,7 +42,7 @@ def evaluate(plant: int, models: Path, out: Path, seeds: list[int], workers: int
          *[a for s in seeds for a in ('--seed', str(s))], '--controller', 'dlmpc',
          '--models-dir', str(models), '--workers', str(workers), '--out', str(out)])
     runs = json.loads((out / 'metrics.json').read_text())['runs']
-    return {scenario: float(np.mean([r['oracle_ratio'] for r in runs
+    return {scenario: float(np.mean([r['metrics']['oracle_ratio'] for r in runs
                                      if r['scenario'] == scenario]))
             for scenario in ('sinusoidal', 'random_walk')}
 
