@@ -28,7 +28,8 @@ from dlmpc_ros.ros.diagnostics import DiagnosticsPublisher
 from dlmpc_ros.ros.io import QOS, vector_message
 
 COMMON_DEFAULTS: dict[str, object] = {
-    'period': 10, 'angle_low': -2 * math.pi, 'angle_high': 2 * math.pi, 'max_step': 0.25,
+    'period': 10, 'angle_low': AngleLimits.low, 'angle_high': AngleLimits.high,
+    'max_step': AngleLimits.max_step,
     'models_dir': '', 'estimator_timeout': 0.5,
 }
 COMMON_DESCRIPTIONS = {
