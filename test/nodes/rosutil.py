@@ -81,6 +81,22 @@ class Probe:
                 raise TimeoutError(f'timed out after {timeout} s waiting for {what}')
             self.executor.spin_once(timeout_sec=0.02)
 
+    def call(self, client, request, timeout: float):
+        """Call a service and wait for its answer, asking again after a lost one: Fast DDS
+        drops a response sent before the server has matched the client's response reader,
+        which ``service_is_ready`` does not wait for (only for idempotent requests)."""
+        deadline = time.monotonic() + timeout
+        while True:
+            future = client.call_async(request)
+            try:
+                self.spin_until(future.done, min(5.0, deadline - time.monotonic()),
+                                f'an answer of {client.srv_name}')
+                return future.result()
+            except TimeoutError:
+                client.remove_pending_request(future)
+                if time.monotonic() >= deadline - 0.1:
+                    raise
+
     def wait_matched(self, topic: str, timeout: float = 30.0) -> None:
         pub = self.publisher(topic)
         self.spin_until(lambda: pub.get_subscription_count() > 0, timeout, f'a reader of {topic}')

@@ -167,20 +167,7 @@ class ParameterClient:
                          and self.describe.service_is_ready(), 60, f'{node} services')
 
     def call(self, client, request):
-        """Call and wait for the answer, asking again after a lost one: Fast DDS drops a
-        response sent before the server has matched the client's response reader, which
-        ``service_is_ready`` does not wait for (every request here is idempotent)."""
-        deadline = time.monotonic() + SERVICE_TIMEOUT
-        while True:
-            future = client.call_async(request)
-            try:
-                self.probe.spin_until(future.done, min(5.0, deadline - time.monotonic()),
-                                      f'an answer of {client.srv_name}')
-                return future.result()
-            except TimeoutError:
-                client.remove_pending_request(future)
-                if time.monotonic() >= deadline - 0.1:
-                    raise
+        return self.probe.call(client, request, SERVICE_TIMEOUT)
 
     def descriptors(self) -> dict[str, object]:
         names = self.call(self.list, ListParameters.Request()).result.names

@@ -84,9 +84,7 @@ def test_parameters_are_validated_at_runtime(ros_env, tmp_path, probe):
         def set_param(name, kind, **value):
             request = SetParameters.Request(parameters=[ParameterMsg(
                 name=name, value=ParameterValue(type=kind, **value))])
-            future = client.call_async(request)
-            probe.spin_until(future.done, 10, 'the set_parameters reply')
-            return future.result().results[0]
+            return probe.call(client, request, 10).results[0]
 
         bad = set_param('pump', ParameterType.PARAMETER_DOUBLE, double_value=-1.0)
         assert not bad.successful and 'pump out of range' in bad.reason  # its descriptor
