@@ -41,3 +41,19 @@ def test_core_runs_without_rclpy():
     proc = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                           timeout=120, cwd=ROOT)
     assert proc.returncode == 0 and proc.stdout.strip() == 'ok', proc.stderr
+
+
+def test_nodes_import_only_what_their_start_needs():
+    """Start-up time on a small machine is the nodes' imports: the drift injector and the
+    bringup load no numba (a random walk is a plain loop), and the DL-MPC node's module
+    no torch (its node imports it once the node exists, so that discovery overlaps)."""
+    code = ('import sys\n'
+            'import dlmpc_ros.nodes.drift_injector_node, dlmpc_ros.bringup\n'
+            'from dlmpc_ros.core.drift import make_scenario\n'
+            'make_scenario("random_walk", seed=1)(70000)\n'
+            'light = "numba" not in sys.modules\n'
+            'import dlmpc_ros.nodes.mpc_controller_node\n'
+            'print(light, "torch" in sys.modules)')
+    proc = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          timeout=120, cwd=ROOT)
+    assert proc.stdout.split() == ['True', 'False'], proc.stderr[-2000:]

@@ -229,8 +229,14 @@ class LaserSimNode(Node):
             needs.append(lambda: self.count_publishers(itf.TOPIC_ANGLES_CMD) > 0)
         if self.values['lockstep_birefringence']:
             needs.append(lambda: self.count_publishers(itf.TOPIC_BIREFRINGENCE) > 0)
+        waited = time.monotonic()
         while not all(need() for need in needs) and not self._stop.wait(0.01):
             pass
+        if not self._stop.is_set() and (wanted > 0 or len(needs) > 1):
+            self.get_logger().info(
+                f'graph complete after {time.monotonic() - waited:.2f} s: '
+                f'{self._state_pub.get_subscription_count()} /laser/state subscribers; '
+                'starting round trip 1')
 
     def _apply_pending(self) -> None:
         with self._lock:

@@ -12,11 +12,11 @@ the files it loads (``kmap.pt``, ``mprnn.pt``, ``track_curve.npz``, ``response.p
 from __future__ import annotations
 
 import sys
+from typing import TYPE_CHECKING
 
 from rclpy.experimental import EventsExecutor
 
 from dlmpc_ros.control.acquisition import AcquisitionConfig
-from dlmpc_ros.control.dlmpc import DLMPCController
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.factory import load_dlmpc
 from dlmpc_ros.control.rotation_planner import PlannerConfig
@@ -25,6 +25,9 @@ from dlmpc_ros.learning.model_files import ModelFileError
 from dlmpc_ros.paths import models_dir
 from dlmpc_ros.ros import params
 from dlmpc_ros.ros.controller_base import ControllerNodeBase
+
+if TYPE_CHECKING:  # torch: imported once the node exists (see MPCControllerNode)
+    from dlmpc_ros.control.dlmpc import DLMPCController
 
 _CFG = DLMPCConfig()
 DEFAULTS: dict[str, object] = {
@@ -124,6 +127,11 @@ class MPCControllerNode(ControllerNodeBase):
                                  **{name: v[name] or None for name in OPTIONAL_DEFAULTS})
         except (ValueError, TypeError) as err:
             raise params.StartupError(str(err)) from None
+        # torch (about 1 s of CPU) loads after the node's DDS participant exists, so that
+        # the other nodes discover it meanwhile; /laser/state is subscribed in start(),
+        # once the controller can act, so the simulator still waits for it.
+        import torch
+        torch.set_num_threads(1)  # small models: threads only contend with the other nodes
         try:
             self.controller = load_dlmpc(models_dir(self.values['models_dir']), config)
         except (ModelFileError, FileNotFoundError) as err:
@@ -136,8 +144,6 @@ class MPCControllerNode(ControllerNodeBase):
 
 
 def main(args: list[str] | None = None) -> None:
-    import torch
-    torch.set_num_threads(1)  # small models: threads only contend with the other nodes
     sys.exit(params.run_node(MPCControllerNode, args, executor_factory=EventsExecutor))
 
 

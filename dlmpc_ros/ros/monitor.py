@@ -26,6 +26,7 @@ from std_msgs.msg import Float64MultiArray
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.graph import STARTUP_ERROR, NodeGraph
 from dlmpc_ros.ros.io import QOS
+from dlmpc_ros.ros.params import process_age
 from dlmpc_ros.recording.run_csv import DECISION_FIELDS, decisions_path, write_header, write_row
 
 #: States wait at most this many rows for their K before they are written without it.
@@ -169,7 +170,8 @@ def run_monitor(args: argparse.Namespace, graph: NodeGraph,
             if graph.died() or time.monotonic() - start > args.connect_timeout:
                 print('bringup: the graph did not connect', file=sys.stderr)
                 return _report_dead(graph) or 2
-        print(f'bringup: graph connected after {time.monotonic() - start:.1f} s', flush=True)
+        print(f'bringup: graph connected {process_age():.1f} s after the bringup started',
+              flush=True)
         last_print, last_count, last_time = 0.0, node.count, time.monotonic()
         while limit == 0 or node.state[0] < limit:
             executor.spin_once(timeout_sec=0.05)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
 import time
@@ -108,6 +109,16 @@ def wait_for_acknowledgements(node: Node, budget: float = ACK_WAIT) -> None:
         publisher.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
 
 
+def process_age() -> float:
+    """Seconds since this process started (Linux /proc; NaN elsewhere)."""
+    try:
+        ticks = int(open('/proc/self/stat').read().rsplit(')', 1)[1].split()[19])
+        uptime = float(open('/proc/uptime').read().split()[0])
+    except (OSError, ValueError, IndexError):
+        return float('nan')
+    return uptime - ticks / os.sysconf('SC_CLK_TCK')
+
+
 def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
              executor_factory: Callable[[], object] | None = None) -> int:
     """Init rclpy, build the node, spin until SIGINT/SIGTERM, shutdown or ``node.finished``.
@@ -138,6 +149,8 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
         node = make_node()
         executor = (executor_factory or rclpy.executors.SingleThreadedExecutor)()
         executor.add_node(node)
+        node.get_logger().info(f'ready {process_age():.2f} s after its process started '
+                               f'({time.process_time():.2f} s of CPU)')
         while not requested.is_set() and rclpy.ok() and not getattr(node, 'finished', False):
             executor.spin_once(timeout_sec=0.1)
         code = getattr(node, 'exit_code', 0)
