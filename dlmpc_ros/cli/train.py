@@ -105,9 +105,11 @@ def adapt(args: argparse.Namespace, show: bool) -> int:
                           AdaptConfig(round_trips=args.round_trips, seed=args.seed,
                                       epochs=4 if args.quick else AdaptConfig.epochs),
                           show_progress=show)
-    print(f"adapt: {report['pairs']} pairs from {report['control_periods']} control periods "
-          f"({report['round_trips_used']} round trips); predictor RMSE on them "
-          f"{report['rmse_before']:.4f} -> {report['rmse_after']:.4f}; rotation prior at "
+    print(f"adapt: {report['pairs']} pairs to fit and {report['held_out_pairs']} held out "
+          f"(the run's last periods) from {report['control_periods']} control periods "
+          f"({report['round_trips_used']} round trips); predictor RMSE on the held-out pairs "
+          f"{report['held_out_rmse_before']:.4f} -> {report['held_out_rmse_after']:.4f} "
+          f"(members kept at epochs {report['epochs_kept']}; 0: shipped); rotation prior at "
           f"{report['prior_knots_set']} knots; wrote {args.out}", flush=True)
     return 0
 

@@ -1,18 +1,19 @@
 """The DL-MPC's model-predictive step on the laser in front of it: plan the curve's rotation.
 
-While the curve tracker holds the laser on its curve, every ``every_blocks`` dither
-blocks the planner asks the steady-response predictor (:mod:`dlmpc_ros.learning.response`)
-what further turns ``delta`` of the curve at the current point would do to the settled O,
-given the rotation there and the E and M measured (averaged over the last
-``measurements`` periods), and picks the turn within the trust radius that maximizes the
-predicted gain less ``spread_penalty`` times the ensemble's spread (a plan the members
-disagree on leaves the data they were trained on). It moves only when that beats
-``min_gain``; else it holds. After each move it compares the O measured once the laser
-settled with the O before, against the prediction, and learns a correction of the
-predictor for this laser online (:class:`OnlineCorrection`: a least-squares line in
-``delta``, fit to the run's own moves, that the next plans add): the predictor is the
-prior, the laser corrects it. A move after which O fell under ``undo_below`` of what it
-was is taken back at once. Planning costs one small forward pass of the ensemble.
+While the curve tracker holds the laser on its curve, every ``plan_every`` dither blocks
+(:class:`~dlmpc_ros.control.tracking.TrackingConfig`) the planner asks the
+steady-response predictor (:mod:`dlmpc_ros.learning.response`) what further turns
+``delta`` of the curve at the current point would do to the settled O, given the rotation
+there and the E and M measured (averaged over the last ``measurements`` periods), and
+picks the turn within the trust radius that maximizes the predicted gain less
+``spread_penalty`` times the ensemble's spread (a plan the members disagree on leaves the
+data they were trained on). It moves only when that beats ``min_gain``; else it holds.
+After each move it compares the O measured once the laser settled with the O before,
+against the prediction, and learns a correction of the predictor for this laser online
+(:class:`OnlineCorrection`: a least-squares line in ``delta``, fit to the run's own
+moves, that the next plans add): the predictor is the prior, the laser corrects it. A
+move after which O fell under ``undo_below`` of what it was is taken back at once.
+Planning costs one small forward pass of the ensemble.
 """
 
 from __future__ import annotations
@@ -31,10 +32,8 @@ if TYPE_CHECKING:  # torch-based: the caller loads it
 
 @dataclass(frozen=True)
 class PlannerConfig:
-    """Settings of the rotation planner (times in dither blocks or control periods)."""
+    """Settings of the rotation planner (times in control periods)."""
 
-    every_blocks: int = 4
-    """Dither blocks between plans (the laser settles and the estimate moves between)."""
     radius: float = 0.1
     """Trust radius: the largest turn of one plan [rad]."""
     candidates: int = 21
@@ -58,7 +57,7 @@ class PlannerConfig:
     """Seed of the exploring turns."""
 
     def __post_init__(self) -> None:
-        checks.counts(self, 'every_blocks', 'measurements', 'memory')
+        checks.counts(self, 'measurements', 'memory')
         checks.counts(self, 'candidates', minimum=3)
         checks.positive(self, 'radius')
         checks.non_negative(self, 'spread_penalty')

@@ -63,7 +63,10 @@ class TrackingConfig:
     dither: float = 0.03
     """Half-amplitude of the dither on ``s``."""
     block: int = 3
-    """Control periods per dither half (the O of the block's last period is used)."""
+    """Control periods per dither half."""
+    block_mean: int = 1
+    """The block's O is the mean over its last this many periods (1: its last period's;
+    more average measurement noise out, at most ``block``)."""
     step: float = 0.015
     """First change of the estimate after a compared block; it grows by ``grow`` while the
     comparisons agree in sign and shrinks by ``shrink`` when they flip (Rprop), within
@@ -144,6 +147,9 @@ class TrackingConfig:
                 or self.settle < 0:
             raise ValueError('block, entry_patience, guard_periods and cooldown must be '
                              '>= 1 and settle >= 0')
+        if not 1 <= self.block_mean <= self.block:
+            raise ValueError(f'block_mean must be in [1, block={self.block}], got '
+                             f'{self.block_mean}')
         if not 0 < self.guard <= 1:
             raise ValueError(f'guard must be in (0, 1], got {self.guard}')
         if not (0 < self.survey_ratio <= 1 and self.survey_spacing > 0) \
@@ -280,8 +286,9 @@ class CurveTracker:
             if self._should_survey(float(objective)):
                 return self._start_survey()
         self._in_block += 1
+        self._block_values.append(float(objective))
         if self._in_block >= self.config.block:
-            self._end_block(float(objective))
+            self._end_block(float(np.mean(self._block_values)))
             if (current is not None and self._wants_other_branch(float(objective))
                     and self.turner.begin(np.asarray(current, float),
                                           self.branch * self.estimate, float(objective))):
@@ -379,6 +386,7 @@ class CurveTracker:
         """Start the dither afresh: first block, no blocks recorded, first Rprop step (the
         learned rotation stays)."""
         self._sign, self._in_block = 1.0, 0  # sign of the dither in the current block
+        self._block_values = deque(maxlen=self.config.block_mean)  # O of its last periods
         self._blocks.clear()
         self._block_count = 0                # blocks closed since (for the plans)
         self._step, self._last_move = self.config.step, 0.0  # Rprop step and last sign
@@ -399,6 +407,7 @@ class CurveTracker:
         cfg = self.config
         self._blocks.append((self._sign, objective))
         self._in_block = 0
+        self._block_values.clear()
         self._block_count += 1
         self._sign = -self._sign
         if self._age > cfg.settle and cfg.trial_drop > 0 and np.isfinite(objective):

@@ -13,12 +13,16 @@ parameter: a hardware laser has neither) this module
    period before), giving the inputs ``(u, theta_a, log E_a, log M_a, theta_b -
    theta_a)`` and the target ``log(O_b / O_a)`` of the steady-response predictor, as its
    own training pairs are (:mod:`dlmpc_ros.training.stages.response`);
-3. fine-tunes every member of the shipped predictor on those pairs, with an L2 pull of
-   ``prior_weight`` toward its shipped weights (the pretrained model is the prior, the
-   laser corrects it);
-4. takes, at each knot of the learned rotation, the rotation of the best settled state
-   recorded near it (``prior_samples`` at least), as the rotation the controller starts
-   from (``rotation_prior.npz``);
+3. fine-tunes every member of the shipped predictor on the pairs of the run's first
+   ``1 - validation`` share of periods, with an L2 pull of ``prior_weight`` toward its
+   shipped weights (the pretrained model is the prior, the laser corrects it), and keeps
+   each member at the epoch that predicts the pairs of the last ``validation`` share (held
+   out, later in the run) best, or at its shipped weights when no epoch beats them;
+4. at each knot of the learned rotation, bins the settled states recorded near it by
+   rotation (``prior_bin`` wide) and takes the bin of the highest mean O as the rotation
+   the controller starts from (``rotation_prior.npz``), only where it beats the bin of
+   the shipped rotation (0) by ``prior_margin`` and both hold ``prior_samples`` states
+   (else 0: no evidence that a turn pays there);
 
 and writes a models folder that ``bringup --models-dir`` and ``dlmpc-evaluate
 --models-dir`` run with: the shipped files, the adapted ``response.pt`` and the prior.
@@ -26,6 +30,7 @@ and writes a models folder that ``bringup --models-dir`` and ``dlmpc-evaluate
 
 from __future__ import annotations
 
+import copy
 import json
 import shutil
 import time
@@ -42,7 +47,7 @@ from dlmpc_ros.core import checks
 from dlmpc_ros.learning.checkpoint import save_checkpoint
 from dlmpc_ros.learning.curve import FILE_NAME, load_curve
 from dlmpc_ros.learning.fit import fit
-from dlmpc_ros.learning.response import LOST, load_response
+from dlmpc_ros.learning.response import LOST, ResponseEnsemble, load_response
 from dlmpc_ros.learning.rotation_prior import save_rotation_prior
 from dlmpc_ros.recording.reader import read_bag
 
@@ -67,8 +72,15 @@ class AdaptConfig:
     lr: float = 5e-4
     prior_weight: float = 1e-2
     """Weight of the L2 pull toward the shipped weights (sum over parameters)."""
+    validation: float = 0.25
+    """Share of the run's periods (its last ones) whose pairs are held out of the
+    fine-tune and choose each member's epoch."""
     prior_samples: int = 5
-    """Settled states near a knot needed before the prior sets its rotation."""
+    """Settled states a rotation bin near a knot needs before the prior compares it."""
+    prior_bin: float = 0.05
+    """Width of the rotation bins of the prior [rad]."""
+    prior_margin: float = 0.02
+    """Least relative gain of mean O of a bin over the shipped rotation's bin."""
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -79,6 +91,10 @@ class AdaptConfig:
         checks.positive(self, 'lr')
         checks.non_negative(self, 'prior_weight')
         checks.fraction(self, 'pulse_fraction')
+        if not 0 < self.validation < 1:
+            raise ValueError(f'validation must be in (0, 1), got {self.validation}')
+        checks.positive(self, 'prior_bin')
+        checks.non_negative(self, 'prior_margin')
 
 
 def laser_periods(bag: Path, cfg: AdaptConfig) -> dict[str, np.ndarray]:
@@ -122,15 +138,30 @@ def laser_pairs(periods: dict[str, np.ndarray], grid: np.ndarray, curve: np.ndar
 
 def rotation_prior(states: dict[str, np.ndarray], knots: np.ndarray, cfg: AdaptConfig
                    ) -> np.ndarray:
-    """The rotation (knots,) [rad] of the best settled state near each knot (0 where
-    fewer than ``prior_samples`` were recorded)."""
+    """The rotation (knots,) [rad] of the best-averaging rotation bin near each knot, where
+    it beats the bin of rotation 0 by ``prior_margin`` (else 0)."""
     half = 0.5 * float(knots[1] - knots[0])
     values = np.zeros(knots.size)
     for i, knot in enumerate(knots):
         near = np.abs(states['u'] - knot) <= half
-        if near.sum() >= cfg.prior_samples:
-            values[i] = states['theta'][near][np.argmax(states['O'][near])]
+        bins = np.round(states['theta'][near] / cfg.prior_bin).astype(int)
+        objective = states['O'][near]
+        means = {b: objective[bins == b].mean() for b in np.unique(bins)
+                 if np.count_nonzero(bins == b) >= cfg.prior_samples}
+        if 0 not in means or len(means) < 2:
+            continue
+        best = max(means, key=means.get)
+        if means[best] > (1 + cfg.prior_margin) * means[0]:
+            values[i] = float(np.mean(states['theta'][near][bins == best]))
     return values
+
+
+def split_periods(periods: dict[str, np.ndarray], validation: float
+                  ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """The run's periods before and after its last ``validation`` share (in time)."""
+    cut = int(round((1 - validation) * periods['round_trip'].size))
+    return ({k: v[:cut] for k, v in periods.items()},
+            {k: v[cut:] for k, v in periods.items()})
 
 
 def adapt_models(bag: Path, models_dir: Path, out: Path, cfg: AdaptConfig | None = None,
@@ -142,29 +173,17 @@ def adapt_models(bag: Path, models_dir: Path, out: Path, cfg: AdaptConfig | None
     grid, curve, _ = load_curve(models_dir / FILE_NAME)
     model, payload = load_response(models_dir / 'response.pt')
     periods = laser_periods(bag, cfg)
-    x, y, states = laser_pairs(periods, grid, curve, cfg)
-    if y.size == 0:
-        raise ValueError(f'{bag} holds no pairs of settled states on the tracking curve to '
-                         'calibrate from; record a run of `bringup --controller explore`')
-    prior = [p.detach().clone() for p in model.parameters()]
-    samples = torch.as_tensor(np.c_[x, y], dtype=torch.float32)
-    generator = torch.Generator().manual_seed(cfg.seed)
-    before = _rmse(model, x, y)
-    for m, member in enumerate(model.members):
-        own = list(member.parameters())
-        start = [prior[i] for i, p in enumerate(model.parameters())
-                 if any(p is q for q in own)]
-
-        def loss_fn(batch: torch.Tensor, _g, member=member, own=own, start=start):
-            z = (batch[:, :-1] - model.mean) / model.std
-            fit_loss = torch.mean((member(z)[:, 0] - batch[:, -1]) ** 2)
-            pull = sum(torch.sum((p - p0) ** 2) for p, p0 in zip(own, start))
-            return fit_loss + cfg.prior_weight * pull, {}
-        pick = torch.randint(samples.shape[0], (samples.shape[0],), generator=generator)
-        fit(member, loss_fn, samples[pick], cfg.epochs, batch=256, lr=cfg.lr,
-            seed=cfg.seed + m, desc=f'adapt member {m + 1}', show_progress=show_progress)
-    model.eval()
-    after = _rmse(model, x, y)
+    _, _, states = laser_pairs(periods, grid, curve, cfg)
+    train, held_out = split_periods(periods, cfg.validation)
+    x, y, _ = laser_pairs(train, grid, curve, cfg)
+    x_val, y_val, _ = laser_pairs(held_out, grid, curve, cfg)
+    if y.size == 0 or y_val.size == 0:
+        raise ValueError(f'{bag} holds too few pairs of settled states on the tracking curve '
+                         f'to calibrate from ({y.size} to fit, {y_val.size} held out); record '
+                         'a longer run of `bringup --controller explore`')
+    before, before_val = _rmse(model, x, y), _rmse(model, x_val, y_val)
+    epochs_kept = fine_tune(model, x, y, x_val, y_val, cfg, show_progress)
+    after, after_val = _rmse(model, x, y), _rmse(model, x_val, y_val)
     knots = np.linspace(grid[0], grid[-1], TrackingConfig().rotation_knots)
     values = rotation_prior(states, knots, cfg)
     if out.resolve() != models_dir.resolve():
@@ -173,7 +192,9 @@ def adapt_models(bag: Path, models_dir: Path, out: Path, cfg: AdaptConfig | None
               'round_trips_used': int(periods['round_trip'][-1]) if periods['round_trip'].size
               else 0, 'control_periods': int(periods['round_trip'].size),
               'settled_states': int(states['u'].size), 'pairs': int(y.size),
-              'rmse_before': before, 'rmse_after': after,
+              'held_out_pairs': int(y_val.size), 'rmse_before': before, 'rmse_after': after,
+              'held_out_rmse_before': before_val, 'held_out_rmse_after': after_val,
+              'epochs_kept': epochs_kept,
               'prior_knots_set': int(np.count_nonzero(values)), 'settings': asdict(cfg),
               'wall_seconds': round(time.monotonic() - started, 1)}
     metrics = {**payload.get('metrics', {}), 'adapted': report}
@@ -182,6 +203,56 @@ def adapt_models(bag: Path, models_dir: Path, out: Path, cfg: AdaptConfig | None
     save_rotation_prior(out, knots, values, report)
     (out / 'adapt.json').write_text(json.dumps(report, indent=2))
     return report
+
+
+def fine_tune(model: ResponseEnsemble, x: np.ndarray, y: np.ndarray, x_val: np.ndarray,
+              y_val: np.ndarray, cfg: AdaptConfig, show_progress: bool = True) -> list[int]:
+    """Fine-tune each member of ``model`` in place on pairs ``x`` (m, 5), ``y`` (m,) with an
+    L2 pull toward its current weights; keep it at the epoch with the least error on the
+    held-out pairs (epoch 0: its weights before). Returns the epoch kept per member."""
+    prior = [p.detach().clone() for p in model.parameters()]
+    samples = torch.as_tensor(np.c_[x, y], dtype=torch.float32)
+    held = (torch.as_tensor((x_val - model.mean.numpy()) / model.std.numpy(),
+                            dtype=torch.float32), torch.as_tensor(y_val, dtype=torch.float32))
+    generator = torch.Generator().manual_seed(cfg.seed)
+    epochs_kept = []
+    for m, member in enumerate(model.members):
+        own = list(member.parameters())
+        start = [prior[i] for i, p in enumerate(model.parameters())
+                 if any(p is q for q in own)]
+        best = {'error': _member_error(member, held), 'epoch': 0,
+                'state': copy.deepcopy(member.state_dict())}
+
+        def keep_best(epoch: int, _loss: float, member=member, best=best) -> None:
+            error = _member_error(member, held)
+            if error < best['error']:
+                best.update(error=error, epoch=epoch + 1,
+                            state=copy.deepcopy(member.state_dict()))
+
+        def loss_fn(batch: torch.Tensor, _g, member=member, own=own, start=start):
+            z = (batch[:, :-1] - model.mean) / model.std
+            fit_loss = torch.mean((member(z)[:, 0] - batch[:, -1]) ** 2)
+            pull = sum(torch.sum((p - p0) ** 2) for p, p0 in zip(own, start))
+            return fit_loss + cfg.prior_weight * pull, {}
+        pick = torch.randint(samples.shape[0], (samples.shape[0],), generator=generator)
+        fit(member, loss_fn, samples[pick], cfg.epochs, batch=256, lr=cfg.lr,
+            seed=cfg.seed + m, on_epoch=keep_best, desc=f'adapt member {m + 1}',
+            show_progress=show_progress)
+        member.load_state_dict(best['state'])
+        epochs_kept.append(best['epoch'])
+    model.eval()
+    return epochs_kept
+
+
+def _member_error(member: torch.nn.Module, held: tuple[torch.Tensor, torch.Tensor]
+                  ) -> float:
+    """Mean squared error of one member on the held-out pairs (normalized inputs)."""
+    was_training = member.training
+    member.eval()
+    with torch.no_grad():
+        error = float(torch.mean((member(held[0])[:, 0] - held[1]) ** 2))
+    member.train(was_training)
+    return error
 
 
 def _rmse(model, x: np.ndarray, y: np.ndarray) -> float:

@@ -130,7 +130,8 @@ def test_an_exploring_run_records_every_state_message_and_calibrates_the_models(
         env=ros_env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     report = json.loads((adapted / 'adapt.json').read_text())
-    assert report['pairs'] > 0 and report['round_trips_used'] >= 3000
+    assert report['pairs'] > 0 and report['held_out_pairs'] > 0
+    assert report['round_trips_used'] >= 3000
     controller = load_dlmpc(adapted)
     assert controller.rotation_prior is not None and controller.planner is not None
 

@@ -3,11 +3,14 @@ that fine-tune the predictor, and the rotation prior (the bag itself: test_bring
 
 import numpy as np
 import pytest
+import torch
 
 from dlmpc_ros.control.rotation import locate
 from dlmpc_ros.learning.curve import load_curve
 from dlmpc_ros.paths import models_dir
-from dlmpc_ros.training.adapt import AdaptConfig, laser_pairs, rotation_prior
+from dlmpc_ros.learning.response import load_response
+from dlmpc_ros.training.adapt import (AdaptConfig, _rmse, fine_tune, laser_pairs,
+                                      rotation_prior, split_periods)
 
 
 @pytest.fixture(scope='module')
@@ -61,13 +64,49 @@ def test_pairs_are_settled_states_at_the_same_point_and_their_change_of_log_o(cu
     assert np.all(np.abs(x[:, 4]) <= 0.1 + 1e-9)
 
 
-def test_the_rotation_prior_takes_the_best_recorded_rotation_near_each_knot(curve):
+def test_the_rotation_prior_takes_the_best_rotation_bin_where_it_beats_the_shipped_one(curve):
     grid, angles = curve
-    periods = _run(grid, angles, [0.0, 0.1, 0.2, 0.15, 0.3], hold=4)
+    periods = _run(grid, angles, [0.0, 0.15, 0.3, 0.15, 0.0], hold=8)
     _, _, states = laser_pairs(periods, grid, angles, AdaptConfig())
     knots = np.linspace(-0.3, 0.3, 13)
     values = rotation_prior(states, knots, AdaptConfig(prior_samples=5))
-    assert values[np.argmin(np.abs(knots + 0.2))] == pytest.approx(0.15)
+    assert values[np.argmin(np.abs(knots + 0.2))] == pytest.approx(0.15)  # O +6 % over 0
     assert np.count_nonzero(values) == 1                # no data elsewhere: 0 there
-    few = rotation_prior(states, knots, AdaptConfig(prior_samples=1000))
-    assert not np.any(few)
+    assert not np.any(rotation_prior(states, knots, AdaptConfig(prior_margin=0.1)))
+    assert not np.any(rotation_prior(states, knots, AdaptConfig(prior_samples=1000)))
+    no_zero = _run(grid, angles, [0.15, 0.3, 0.15], hold=8)   # nothing at the shipped 0
+    _, _, states = laser_pairs(no_zero, grid, angles, AdaptConfig())
+    assert not np.any(rotation_prior(states, knots, AdaptConfig()))
+
+
+def test_split_periods_holds_out_the_last_share_in_time():
+    periods = {'round_trip': 10.0 * np.arange(1, 21), 'E': np.ones(20)}
+    train, held = split_periods(periods, 0.25)
+    assert train['round_trip'].max() < held['round_trip'].min()
+    assert (train['E'].size, held['E'].size) == (15, 5)
+
+
+def _pairs(rng, n, shift):
+    """Pairs of the predictor's inputs with targets its shipped model misses by ``shift``."""
+    model, _ = load_response(models_dir() / 'response.pt')
+    x = np.c_[rng.uniform(-0.2, 0.2, n), rng.uniform(-0.1, 0.1, n), rng.uniform(0.5, 1.5, n),
+              rng.uniform(3.0, 4.0, n), rng.uniform(-0.1, 0.1, n)]
+    with torch.no_grad():
+        shipped = model(torch.as_tensor(x, dtype=torch.float32)).mean(-1).numpy()
+    return x, shipped + shift
+
+
+def test_fine_tune_keeps_what_helps_on_held_out_pairs_and_the_shipped_weights_otherwise():
+    rng = np.random.default_rng(0)
+    cfg = AdaptConfig(epochs=8, lr=2e-3)
+    x, y = _pairs(rng, 300, 0.3)             # this laser: log O 0.3 above the prediction
+    x_val, y_val = _pairs(rng, 100, 0.3)
+    model, _ = load_response(models_dir() / 'response.pt')
+    kept = fine_tune(model, x, y, x_val, y_val, cfg, show_progress=False)
+    assert all(epoch > 0 for epoch in kept)
+    assert _rmse(model, x_val, y_val) < 0.5 * 0.3
+    x_val, y_val = _pairs(rng, 100, -0.3)    # held-out pairs that contradict the fit
+    model, _ = load_response(models_dir() / 'response.pt')
+    shipped = [p.detach().clone() for p in model.parameters()]
+    assert fine_tune(model, x, y, x_val, y_val, cfg, show_progress=False) == [0] * len(kept)
+    assert all(torch.equal(p, q) for p, q in zip(model.parameters(), shipped))
