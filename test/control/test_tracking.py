@@ -63,6 +63,18 @@ def test_estimate_climbs_to_the_peak_and_follows_a_drifting_one():
     assert np.corrcoef(est[late], truth[late])[0, 1] > 0.95
 
 
+def test_a_block_is_judged_by_the_mean_o_of_its_last_block_mean_periods():
+    """With block_mean = block every period of a block counts; with 1 only its last."""
+    pattern = (0.2, 0.2, 0.3)                       # period by period, one block long
+    for block_mean, allowed in ((3, {0.7 / 3}), (1, {0.2, 0.3})):
+        cfg = TrackingConfig(entry_patience=1, settle=0, block=3, block_mean=block_mean,
+                             mirror=False)
+        tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
+        for t in range(60):
+            tracker.step(pattern[t % 3])
+        assert any(tracker._branch_best == pytest.approx(v) for v in allowed), block_mean
+
+
 def test_flat_objective_inside_the_deadband_leaves_the_estimate_alone():
     cfg = TrackingConfig(entry_patience=1, settle=0, deadband=1e-3)
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
@@ -241,7 +253,8 @@ def test_a_turn_stays_inside_the_servo_limits():
                                  dict(survey_dwell=0), dict(mirror_margin=-0.1),
                                  dict(turn_step=0), dict(turn_step=2.0),
                                  dict(turn_guard=0), dict(turn_cooldown=0),
-                                 dict(trial_drop=1.0), dict(trial_drop=-0.1)])
+                                 dict(trial_drop=1.0), dict(trial_drop=-0.1),
+                                 dict(block_mean=0), dict(block_mean=4)])
 def test_bad_tracking_settings_are_rejected(bad):
     with pytest.raises(ValueError):
         TrackingConfig(**bad)
