@@ -46,14 +46,16 @@ def test_core_runs_without_rclpy():
 def test_nodes_import_only_what_their_start_needs():
     """Start-up time on a small machine is the nodes' imports: the drift injector and the
     bringup load no numba (a random walk is a plain loop), and the DL-MPC node's module
-    no torch (its node imports it once the node exists, so that discovery overlaps)."""
+    no torch (its node imports it once the node exists, so that discovery overlaps); a
+    node's age, which its ready line reports, is the seconds since its process started."""
     code = ('import sys\n'
             'import dlmpc_ros.nodes.drift_injector_node, dlmpc_ros.bringup\n'
             'from dlmpc_ros.core.drift import make_scenario\n'
             'make_scenario("random_walk", seed=1)(70000)\n'
             'light = "numba" not in sys.modules\n'
             'import dlmpc_ros.nodes.mpc_controller_node\n'
-            'print(light, "torch" in sys.modules)')
+            'from dlmpc_ros.ros.params import process_age\n'
+            'print(light, "torch" in sys.modules, 0 < process_age() < 120)')
     proc = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                           timeout=120, cwd=ROOT)
-    assert proc.stdout.split() == ['True', 'False'], proc.stderr[-2000:]
+    assert proc.stdout.split() == ['True', 'False', 'True'], proc.stderr[-2000:]

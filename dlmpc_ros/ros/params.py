@@ -7,6 +7,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Mapping
+from pathlib import Path
 
 import rclpy
 from rclpy.duration import Duration
@@ -112,8 +113,8 @@ def wait_for_acknowledgements(node: Node, budget: float = ACK_WAIT) -> None:
 def process_age() -> float:
     """Seconds since this process started (Linux /proc; NaN elsewhere)."""
     try:
-        ticks = int(open('/proc/self/stat').read().rsplit(')', 1)[1].split()[19])
-        uptime = float(open('/proc/uptime').read().split()[0])
+        ticks = int(Path('/proc/self/stat').read_text().rsplit(')', 1)[1].split()[19])
+        uptime = float(Path('/proc/uptime').read_text().split()[0])
     except (OSError, ValueError, IndexError):
         return float('nan')
     return uptime - ticks / os.sysconf('SC_CLK_TCK')
