@@ -210,6 +210,21 @@ def test_where_the_estimate_says_nothing_a_fall_of_o_makes_the_tracker_try_the_t
     assert silent.branch == 1 and np.mean(o_silent[-100:]) < 0.185
 
 
+def test_after_an_acquisition_lock_the_tracker_tries_the_other_branch_once():
+    """The scan stops at the first point that passes the lock level, here on the weaker
+    branch (K = 0.15 held, O flat along the curve, nothing else would make it turn): the
+    entry trial finds the twin and keeps it; without it the tracker stays."""
+    cfg = TrackingConfig(settle=5, start=-0.1, trial_drop=0.0, mirror_margin=0.5)
+    for entry_trial, branch, low, high in ((True, -1, 0.195, 1.0), (False, 1, 0.0, 0.186)):
+        tracker = CurveTracker(GRID, ANGLES, threshold=0.1,
+                               config=replace(cfg, entry_trial=entry_trial))
+        tracker.enter_at(-0.1, 1, 0.185)
+        o, _, _ = _drive_mirrored(tracker, lambda t: 0.15, 300, curvature=0.0)
+        assert tracker.branch == branch, entry_trial
+        assert low < np.mean(o[-50:]) < high, entry_trial
+        assert tracker.turner.made + tracker.turner.rejected == int(entry_trial)
+
+
 def test_a_turn_that_loses_the_pulse_is_turned_back_and_tried_the_other_way():
     """A laser whose sign conventions are the other way round from the simulator's: K
     runs from -0.1 to 0.25 in 200 periods, the estimate passes the margin, the quarter turn in the
