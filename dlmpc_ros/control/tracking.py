@@ -133,7 +133,10 @@ class TrackingConfig:
     entry_trial: bool = True
     """Once tracking that began where the acquisition scan locked has settled, try the
     other branch once (the scan stops at the first point that passes the lock level,
-    which may be the weaker branch; the turn is kept only if it gains)."""
+    which may be the weaker branch; the turn is kept only if it gains) ..."""
+    entry_trial_below: float = 0.8
+    """... if O is then under this fraction of the curve's own steady O at the estimate
+    (the O the curve gave on the simulator; without it, always; 0: never)."""
     plan_every: int = 4
     """Dither blocks between two requests for a turn of the curve (with a planner)."""
     rotation_knots: int = 13
@@ -161,6 +164,8 @@ class TrackingConfig:
                 or min(self.survey_patience, self.survey_dwell, self.survey_cooldown) < 1:
             raise ValueError('survey_ratio must be in (0, 1], survey_spacing > 0 and the '
                              'survey periods >= 1')
+        if not self.entry_trial_below >= 0:
+            raise ValueError(f'entry_trial_below must be >= 0, got {self.entry_trial_below}')
         if not (self.mirror_margin >= 0 and 0 < self.turn_step <= QUARTER_TURN
                 and self.free_turn >= 0 and 0 < self.turn_guard <= 1
                 and self.turn_cooldown >= 1 and self.verify >= 1 and self.branch_gain > -1
@@ -293,7 +298,9 @@ class CurveTracker:
                 return self._start_survey()
         if self._entry_trial and self._age > self.config.settle and current is not None:
             self._entry_trial = False
-            if self.turner.wait == 0 and self.turner.begin(
+            weak = (self.expected is None or objective < self.config.entry_trial_below
+                    * self.expected_objective(self.estimate))
+            if weak and self.turner.wait == 0 and self.turner.begin(
                     np.asarray(current, float), self.branch * self.estimate, float(objective)):
                 return self._turning(float(objective))
         self._in_block += 1

@@ -223,6 +223,17 @@ def test_after_an_acquisition_lock_the_tracker_tries_the_other_branch_once():
         assert tracker.branch == branch, entry_trial
         assert low < np.mean(o[-50:]) < high, entry_trial
         assert tracker.turner.made + tracker.turner.rejected == int(entry_trial)
+    # a lock whose O is already near what the curve gave on the simulator is not tried
+    content = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg,
+                           expected=np.full(GRID.size, 0.2))
+    content.enter_at(-0.1, 1, 0.185)
+    _drive_mirrored(content, lambda t: 0.15, 300, curvature=0.0)
+    assert content.branch == 1 and content.turner.made + content.turner.rejected == 0
+    doubtful = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg,
+                            expected=np.full(GRID.size, 0.3))     # 0.185 < 0.8 x 0.3
+    doubtful.enter_at(-0.1, 1, 0.185)
+    _drive_mirrored(doubtful, lambda t: 0.15, 300, curvature=0.0)
+    assert doubtful.branch == -1
 
 
 def test_a_turn_that_loses_the_pulse_is_turned_back_and_tried_the_other_way():
@@ -269,7 +280,8 @@ def test_a_turn_stays_inside_the_servo_limits():
                                  dict(turn_step=0), dict(turn_step=2.0),
                                  dict(turn_guard=0), dict(turn_cooldown=0),
                                  dict(trial_drop=1.0), dict(trial_drop=-0.1),
-                                 dict(block_mean=0), dict(block_mean=4)])
+                                 dict(block_mean=0), dict(block_mean=4),
+                                 dict(entry_trial_below=-0.1)])
 def test_bad_tracking_settings_are_rejected(bad):
     with pytest.raises(ValueError):
         TrackingConfig(**bad)
