@@ -30,6 +30,12 @@ def test_colcon_style_install_puts_executables_where_ros2_run_looks(tmp_path):
         'laser_sim.yaml', 'drift_injector.yaml', 'fastdds_loopback.xml'}
 
 
+def _fresh_python(code: str) -> subprocess.CompletedProcess:
+    """``code`` run by a new interpreter in the repository (nothing imported before it)."""
+    return subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          timeout=120, cwd=ROOT)
+
+
 def test_core_runs_without_rclpy():
     code = ('import sys; sys.modules["rclpy"] = None\n'
             'from dlmpc_ros.core.cavity import Cavity\n'
@@ -38,8 +44,7 @@ def test_core_runs_without_rclpy():
             'r = Cavity(birefringence=make_scenario("chirp")(100)).run(2)\n'
             'assert r.finite.all()\n'
             'print("ok")')
-    proc = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
-                          timeout=120, cwd=ROOT)
+    proc = _fresh_python(code)
     assert proc.returncode == 0 and proc.stdout.strip() == 'ok', proc.stderr
 
 
@@ -56,6 +61,5 @@ def test_nodes_import_only_what_their_start_needs():
             'import dlmpc_ros.nodes.mpc_controller_node\n'
             'from dlmpc_ros.ros.params import process_age\n'
             'print(light, "torch" in sys.modules, 0 < process_age() < 120)')
-    proc = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
-                          timeout=120, cwd=ROOT)
+    proc = _fresh_python(code)
     assert proc.stdout.split() == ['True', 'False', 'True'], proc.stderr[-2000:]
