@@ -170,11 +170,13 @@ class NodeGraph:
         return restarted
 
     def died(self) -> list[NodeProcess]:
-        """Nodes that exited without being asked to, after restarting those that may be
-        restarted (:meth:`respawn_exited`)."""
+        """Nodes that exited without being asked to and will not be restarted, after
+        restarting those that may be (:meth:`respawn_exited`). A respawnable node whose new
+        process has exited already is not dead: the next call restarts it or gives up."""
         self.respawn_exited()
         return [n for n in self.nodes
-                if n.process is not None and not n.stopping and n.process.poll() is not None]
+                if n.process is not None and not n.stopping and not n.respawn
+                and n.process.poll() is not None]
 
     def stop(self, timeout: float = 10.0) -> dict[str, int]:
         """SIGINT every node, wait up to ``timeout`` s, then SIGTERM, then SIGKILL; nodes
