@@ -48,6 +48,9 @@ class PlannerConfig:
     """Recent periods whose log E and log M are averaged as the predictor's input."""
     online: bool = True
     """Correct the predictor online from the run's own moves."""
+    online_magnitude: bool = True
+    """The online correction also learns a term in |turn|: how much less (or more) than
+    predicted any turn gains on this laser."""
     memory: int = 30
     """Recent moves the online correction is fit to."""
     undo_below: float = 0.85
@@ -69,23 +72,35 @@ class PlannerConfig:
 
 
 class OnlineCorrection:
-    """What the predictor got wrong on this laser: a line ``a + b * delta`` fit (ridge
-    least squares) to the errors of the last ``memory`` moves, added to later plans."""
+    """What the predictor got wrong on this laser: ``a + b * delta (+ c * |delta|)`` fit
+    (ridge least squares) to the errors of the last ``memory`` moves, added to later
+    plans (the planner uses it less its value at 0, so ``a`` only absorbs what the drift
+    of K did between the two measurements of a move). ``b`` learns a predictor that is
+    wrong about which way to turn; ``c`` (with ``magnitude``) one that is wrong about
+    whether turning pays at all, as on a laser whose best rotation is the curve's own."""
 
-    def __init__(self, memory: int, ridge: float = 1.0) -> None:
+    def __init__(self, memory: int, ridge: float = 1.0, magnitude: bool = True) -> None:
         self.moves: deque[tuple[float, float]] = deque(maxlen=memory)  # (delta, error)
         self.ridge = ridge
-        self.coefficients = np.zeros(2)
+        self.magnitude = magnitude
+        self.coefficients = np.zeros(3 if magnitude else 2)
+
+    def _terms(self, delta: np.ndarray) -> np.ndarray:
+        """(n, 2 or 3) regressors of turns (n,): 1, delta and |delta| in units of 0.1 rad."""
+        d = np.asarray(delta, float).reshape(-1) / 0.1
+        columns = [np.ones_like(d), d] + ([np.abs(d)] if self.magnitude else [])
+        return np.stack(columns, axis=1)
 
     def add(self, delta: float, error: float) -> None:
         """One move's turn and its error (measured minus predicted change of log O)."""
         self.moves.append((float(delta), float(error)))
         d, e = np.array(self.moves).T
-        x = np.stack([np.ones_like(d), d / 0.1], axis=1)  # delta in units of 0.1 rad
-        self.coefficients = np.linalg.solve(x.T @ x + self.ridge * np.eye(2), x.T @ e)
+        x = self._terms(d)
+        self.coefficients = np.linalg.solve(x.T @ x + self.ridge * np.eye(x.shape[1]),
+                                            x.T @ e)
 
     def __call__(self, delta: np.ndarray) -> np.ndarray:
-        return self.coefficients[0] + self.coefficients[1] * np.asarray(delta) / 0.1
+        return self._terms(delta) @ self.coefficients
 
 
 class RotationPlanner:
@@ -95,7 +110,8 @@ class RotationPlanner:
         self.model = model
         self.config = config or PlannerConfig()
         self.recent: deque[tuple[float, float]] = deque(maxlen=self.config.measurements)
-        self.correction = OnlineCorrection(self.config.memory)
+        self.correction = OnlineCorrection(self.config.memory,
+                                           magnitude=self.config.online_magnitude)
         self.moves = 0
         self.undone = 0
         self._rng = np.random.default_rng(self.config.seed)

@@ -90,3 +90,19 @@ def test_the_online_correction_learns_what_the_predictor_gets_wrong_on_this_lase
         correction.add(delta, -0.3 * delta)
     slope = correction(np.array([0.1]))[0] - correction(np.array([0.0]))[0]
     assert -0.03 < slope < -0.01  # shrunk toward 0 by the ridge
+    assert correction(np.array([-0.1]))[0] - correction(np.array([0.0]))[0] > 0.01
+
+
+def test_the_online_correction_learns_that_no_turn_pays_on_this_laser():
+    """A predictor that promises a gain for every turn, on a laser whose best rotation
+    is the curve's own: the |turn| term learns that turns either way lose; without it
+    the line cannot (its slope stays 0) and the planner keeps turning."""
+    for magnitude in (True, False):
+        correction = OnlineCorrection(memory=10, magnitude=magnitude)
+        for delta in (0.1, -0.1, 0.05, -0.05, 0.1, -0.1):  # 0.02 lost per 0.1 rad either way
+            correction.add(delta, 0.001 - 0.2 * abs(delta))
+        turned = correction(np.array([-0.1, 0.1])) - correction(np.array([0.0]))
+        if magnitude:
+            assert (turned < -0.005).all()
+        else:
+            assert np.allclose(turned, 0.0, atol=1e-3)
