@@ -82,6 +82,11 @@ class TrackingConfig:
     """Factor on the step when they flip (in (0, 1])."""
     deadband: float = 5e-5
     """Relative O difference below which the estimate does not move."""
+    noise_deadband: float = 0.0
+    """If > 0: the estimate also does not move while the compared difference is under
+    this many standard deviations of the measurement noise of such a difference, the
+    noise read off the run itself (the spread of O between consecutive periods of a
+    block, which ran with the same angles; 0: off)."""
     entry_patience: int = 3
     """Locked periods under the inner loop before tracking takes over."""
     settle: int = 20
@@ -146,9 +151,9 @@ class TrackingConfig:
 
     def __post_init__(self) -> None:
         if not (self.dither > 0 and 0 < self.min_step <= self.step <= self.max_step
-                and self.deadband >= 0):
-            raise ValueError('need dither > 0, 0 < min_step <= step <= max_step and '
-                             'deadband >= 0')
+                and self.deadband >= 0 and self.noise_deadband >= 0):
+            raise ValueError('need dither > 0, 0 < min_step <= step <= max_step, '
+                             'deadband >= 0 and noise_deadband >= 0')
         if not (self.grow >= 1 and 0 < self.shrink <= 1):
             raise ValueError('need grow >= 1 and 0 < shrink <= 1')
         if min(self.block, self.entry_patience, self.guard_periods, self.cooldown) < 1 \
@@ -209,6 +214,8 @@ class CurveTracker:
         self._wait = 0            # cooldown periods left
         self._cooldown = self.config.cooldown
         self._blocks: deque[tuple[float, float]] = deque(maxlen=3)  # (sign, O)
+        #: |change of log O| between consecutive periods of a block (same angles): noise
+        self._jitter: deque[float] = deque(maxlen=64)
         self.rotation = CurveRotation(self.grid[0], self.grid[-1],
                                       self.config.rotation_knots, self.config.rotation_limit)
         #: ``(u, theta) -> further turn [rad]`` asked every ``plan_every`` blocks (None:
@@ -304,6 +311,9 @@ class CurveTracker:
                     np.asarray(current, float), self.branch * self.estimate, float(objective)):
                 return self._turning(float(objective))
         self._in_block += 1
+        if self._in_block > 1 and self._block_values and objective > 0 \
+                and self._block_values[-1] > 0:
+            self._jitter.append(abs(float(np.log(objective / self._block_values[-1]))))
         self._block_values.append(float(objective))
         if self._in_block >= self.config.block:
             self._end_block(float(np.mean(self._block_values)))
@@ -419,6 +429,19 @@ class CurveTracker:
         if failed:
             self._cooldown = min(2 * self._cooldown, 64 * self.config.cooldown)
 
+    def _deadband(self) -> float:
+        """The relative O difference under which the estimate holds: ``deadband``, or
+        ``noise_deadband`` standard deviations of the compared difference's noise if
+        larger (a block's O is the mean of ``block_mean`` periods; the difference
+        weighs three blocks 1, 1/2, 1/2, so its variance is 1.5 times a block's)."""
+        cfg = self.config
+        if cfg.noise_deadband <= 0 or len(self._jitter) < 8:
+            return cfg.deadband
+        # median |difference of two periods| -> one period's standard deviation
+        sigma = 1.4826 * float(np.median(self._jitter)) / np.sqrt(2.0)
+        return max(cfg.deadband,
+                   cfg.noise_deadband * sigma * np.sqrt(1.5 / cfg.block_mean))
+
     def _end_block(self, objective: float) -> None:
         """Close a dither half: compare it with its neighbours and move the estimate; every
         ``plan_every`` blocks, turn the curve at the estimate's point by the planner's
@@ -434,7 +457,7 @@ class CurveTracker:
         if len(self._blocks) == 3 and self._age > cfg.settle:
             (_, before), (sign, middle), (_, after) = self._blocks
             difference = sign * (middle - 0.5 * (before + after))   # O(+) - O(-)
-            if abs(difference) > cfg.deadband * max(abs(middle), 1e-12):
+            if abs(difference) > self._deadband() * max(abs(middle), 1e-12):
                 self._step, self._last_move, move = _rprop(
                     difference, self._step, self._last_move, cfg.grow, cfg.shrink,
                     cfg.min_step, cfg.max_step)

@@ -85,6 +85,32 @@ def test_flat_objective_inside_the_deadband_leaves_the_estimate_alone():
     assert tracker.estimate == pytest.approx(cfg.start)
 
 
+def test_the_noise_deadband_reads_the_noise_off_the_run_and_holds_the_estimate_at_the_peak():
+    """A noisy toy laser (1.4 % on O per period) at its peak: judging the dither against
+    the noise it measured keeps the estimate nearer the peak than the fixed deadband;
+    without noise it tracks as before."""
+    def run(noise_deadband: float, noise: float, seed: int, k: float = -0.1):
+        rng = np.random.default_rng(seed)
+        cfg = TrackingConfig(entry_patience=1, settle=0, mirror=False, start=-0.1,
+                             noise_deadband=noise_deadband)
+        tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg)
+        o, estimates = 0.2 - (0.1 + k) ** 2, []
+        for _ in range(2000):
+            command = tracker.step(o)
+            o = (0.2 - (command[0] / 2 - k) ** 2) * (1 + noise * rng.standard_normal())
+            estimates.append(tracker.estimate)
+        return np.array(estimates[500:]), tracker
+
+    fixed = np.mean([np.mean(np.abs(run(0.0, 0.014, s)[0] + 0.1)) for s in range(3)])
+    aware = np.mean([np.mean(np.abs(run(1.0, 0.014, s)[0] + 0.1)) for s in range(3)])
+    assert aware < 0.8 * fixed, (aware, fixed)
+    _, tracker = run(1.0, 0.014, 0)
+    assert 0.01 < tracker._deadband() < 0.03  # about 1.4 % x sqrt(1.5)
+    quiet, tracker = run(1.0, 0.0, 0, k=0.0)  # no noise: climbs from -0.1 to the peak
+    assert abs(np.mean(quiet[-300:])) < 0.02
+    assert tracker._deadband() < 1e-3
+
+
 def test_guard_recentres_then_hands_back_and_waits_a_growing_cooldown():
     cfg = TrackingConfig(entry_patience=2, settle=4, guard=0.9, guard_periods=2,
                          block=2, cooldown=10, start=0.0)
