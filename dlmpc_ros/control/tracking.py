@@ -82,11 +82,13 @@ class TrackingConfig:
     """Factor on the step when they flip (in (0, 1])."""
     deadband: float = 5e-5
     """Relative O difference below which the estimate does not move."""
-    noise_deadband: float = 0.0
+    noise_deadband: float = 1.0
     """If > 0: the estimate also does not move while the compared difference is under
     this many standard deviations of the measurement noise of such a difference, the
     noise read off the run itself (the spread of O between consecutive periods of a
-    block, which ran with the same angles; 0: off)."""
+    block, which ran with the same angles; 0: off). Chosen on the development plants:
+    1 % noise on E and M costs 0.005 with it, 0.012 without
+    (``bench/results/noise_deadband.md``)."""
     entry_patience: int = 3
     """Locked periods under the inner loop before tracking takes over."""
     settle: int = 20

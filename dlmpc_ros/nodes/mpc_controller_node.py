@@ -47,7 +47,7 @@ ACQUISITION_DEFAULTS: dict[str, object] = {
 _TRK = TrackingConfig()
 TRACKING_DEFAULTS: dict[str, object] = {
     'track': True, 'track_dither': _TRK.dither, 'track_step': _TRK.step,
-    'track_guard': _TRK.guard,
+    'track_guard': _TRK.guard, 'track_noise_deadband': _TRK.noise_deadband,
 }
 _PLN = PlannerConfig()
 PLANNER_DEFAULTS: dict[str, object] = {
@@ -83,6 +83,9 @@ DESCRIPTIONS = {
                   'it adapts between 0.005 and 0.03)',
     'track_guard': 'hand back to the inner loop when O under tracking falls below this x '
                    'the O before it took over',
+    'track_noise_deadband': 'the curve estimate moves only when the dither\'s O difference '
+                            'passes this many standard deviations of the measurement noise '
+                            'read off the run; 0: off',
     'plan': 'while tracking, turn the curve where the steady-response predictor '
             '(response.pt) says O gains (the model-predictive step on this laser)',
     'plan_radius': 'trust radius: largest turn of the curve per plan [rad]',
@@ -99,7 +102,7 @@ RANGES: dict[str, tuple[float, float]] = {
     'guard_cooldown': (1, 1_000_000), 'lock_fraction': (1e-6, 0.999999),
     'acquire_patience': (1, 1_000_000), 'acquire_dwell': (1, 1_000_000),
     'track_dither': (1e-9, 1.0), 'track_step': (_TRK.min_step, _TRK.max_step),
-    'track_guard': (1e-6, 1.0),
+    'track_guard': (1e-6, 1.0), 'track_noise_deadband': (0.0, 10.0),
     'plan_radius': (1e-3, 1.0), 'plan_spread_penalty': (0.0, 100.0),
 }
 
@@ -117,7 +120,9 @@ class MPCControllerNode(ControllerNodeBase):
                 lock_fraction=v['lock_fraction'], patience=v['acquire_patience'],
                 dwell_periods=v['acquire_dwell']) if v['acquire'] else None
             tracking = TrackingConfig(dither=v['track_dither'], step=v['track_step'],
-                                      guard=v['track_guard']) if v['track'] else None
+                                      guard=v['track_guard'],
+                                      noise_deadband=v['track_noise_deadband']
+                                      ) if v['track'] else None
             planner = PlannerConfig(
                 radius=v['plan_radius'], spread_penalty=v['plan_spread_penalty'],
                 online=v['plan_online'], explore=v['plan_explore']) if v['plan'] else None
