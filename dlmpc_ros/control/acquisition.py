@@ -10,8 +10,8 @@ that is not the nominal cavity has its own scale of O, and a state far under its
 best has lost its pulse for another) and, after ``patience`` unlocked periods, scans a
 list of candidate angle
 sets from a :class:`ScanSource`, dwelling ``dwell_periods`` at each once the servos are
-there, until O passes the threshold. Then control goes back to the DL-MPC's modes, told
-which point locked (:attr:`LockSupervisor.locked_at`).
+there, until O has stayed at the threshold for ``confirm_periods``. Then control goes back
+to the DL-MPC's modes, told which point locked (:attr:`LockSupervisor.locked_at`).
 
 Two sources: the tracking curve and its mirror twin at ``curve_points`` (the curve
 tracker's :class:`~dlmpc_ros.control.tracking.CurveScan`: points that start a pulse from
@@ -23,6 +23,7 @@ surrogate seen while locked first).
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from statistics import NormalDist
@@ -55,6 +56,14 @@ class AcquisitionConfig:
     """Also unlocked: O under this fraction of the laser's own recent best (0: off)."""
     level_decay: float = 0.9995
     """Per-period decay of that recent best (0.9995: to 0.6 in 1,000 periods)."""
+    level_window: int = 3
+    """The recent best is of the median O of this many latest periods (a pulse forming
+    from noise overshoots for a period or two; that spike is not the laser's level)."""
+    confirm_periods: int = 1
+    """Consecutive periods at the lock level before the scan lets go (a period over it
+    while the servos travel between points can be a transient that dies at once). 2
+    locked 4 more of 100 cold starts on one development plant and lost 0.005 on the
+    family's random walks (``bench/results/acquisition_confirm.md``): 1 by default."""
     curve_points: tuple[float, ...] = (-0.25, -0.3, -0.2, -0.15, -0.1, -0.05, 0.0)
     """Parameters u on the tracking curve (K units) the curve scan visits, each with its
     mirror twin, in this order (from the simulator: c(-0.25) starts a pulse from noise at
@@ -63,9 +72,10 @@ class AcquisitionConfig:
     def __post_init__(self) -> None:
         if not 0 < self.lock_fraction < 1:
             raise ValueError(f'lock_fraction must be in (0, 1), got {self.lock_fraction}')
-        if min(self.patience, self.dwell_periods, self.scan_points, self.travel_periods) < 1:
-            raise ValueError('patience, dwell_periods, scan_points and travel_periods must '
-                             'be >= 1')
+        if min(self.patience, self.dwell_periods, self.scan_points, self.travel_periods,
+               self.level_window, self.confirm_periods) < 1:
+            raise ValueError('patience, dwell_periods, scan_points, travel_periods, '
+                             'level_window and confirm_periods must be >= 1')
         checks.positive(self, 'arrive_tolerance')
         if not self.curve_points or not np.all(np.isfinite(self.curve_points)):
             raise ValueError('curve_points must be a non-empty list of finite values')
@@ -139,6 +149,8 @@ class LockSupervisor:
         self.source = source
         self.unlocked = 0
         self.level = 0.0  # the laser's recent best O (a decaying maximum)
+        self._latest: deque[float] = deque(maxlen=self.config.level_window)  # finite O
+        self._locked_run = 0  # consecutive locked periods
         self.locked_at: ScanPoint | None = None
         self._order: list[ScanPoint] = []
         self._target: ScanPoint | None = None
@@ -152,8 +164,17 @@ class LockSupervisor:
     def step(self, objective: float, current: np.ndarray, surrogate: float) -> np.ndarray | None:
         self.locked_at = None
         if np.isfinite(objective):
-            self.level = max(float(objective), self.level * self.config.level_decay)
-        if self.locked(objective):
+            self._latest.append(float(objective))
+            self.level = max(float(np.median(self._latest)),
+                             self.level * self.config.level_decay)
+        locked = self.locked(objective)
+        self._locked_run = self._locked_run + 1 if locked else 0
+        scanning = self.unlocked > self.config.patience
+        if locked and scanning and self._locked_run < self.config.confirm_periods:
+            # over the level under the scan: hold course until it has lasted
+            return (self._target.angles if self._target is not None
+                    else self._scan(np.asarray(current, float)))
+        if locked:
             self.source.note_locked(surrogate)
             self.locked_at = self._target
             self.unlocked = 0
