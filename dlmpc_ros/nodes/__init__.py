@@ -6,12 +6,22 @@ process quietly with exit code 0 until its node takes the signals over
 loading models) stops a node without a traceback.
 """
 
+import os
 import signal
 import sys
 
 
 def _stop_quietly(signum, frame) -> None:
-    sys.exit(0)
+    # os._exit, not sys.exit: a SystemExit raised while the interpreter runs a callback
+    # (importlib's module-lock cleanup, mid-import) is printed as "Exception ignored"
+    # with a traceback and swallowed, and the node would start anyway. Before its node
+    # exists the process holds nothing that needs closing but its output.
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(0)
 
 
 for _signal in (signal.SIGINT, signal.SIGTERM):

@@ -25,7 +25,7 @@ def _no_truth(*_args, **_kwargs):
 @pytest.mark.parametrize('name', ['dlmpc', 'esc', 'fixed_best'])
 def test_replayed_measurements_give_the_same_decisions_without_the_true_k(name, monkeypatch):
     models = models_dir()
-    spec = RunSpec('random_walk', 2, name, round_trips=ROUND_TRIPS)
+    spec = RunSpec('random_walk', 1, name, round_trips=ROUND_TRIPS)
     record = run_fast(spec, models)
     if name == 'dlmpc':  # the replay covers the inner loop, the tracker and the planner
         assert {MODES.index(m) for m in ('inner', 'track', 'plan')} <= set(record.mode.tolist())
