@@ -169,11 +169,10 @@ class LockSupervisor:
                              self.level * self.config.level_decay)
         locked = self.locked(objective)
         self._locked_run = self._locked_run + 1 if locked else 0
-        scanning = self.unlocked > self.config.patience
-        if locked and scanning and self._locked_run < self.config.confirm_periods:
-            # over the level under the scan: hold course until it has lasted
-            return (self._target.angles if self._target is not None
-                    else self._scan(np.asarray(current, float)))
+        if locked and self._target is not None \
+                and self._locked_run < self.config.confirm_periods:
+            # over the level while scanning: hold course until it has lasted
+            return self._target.angles
         if locked:
             self.source.note_locked(surrogate)
             self.locked_at = self._target
