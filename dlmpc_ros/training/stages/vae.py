@@ -32,6 +32,19 @@ def pearson(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.corrcoef(np.ravel(a), np.ravel(b))[0, 1])
 
 
+def smoothest_used(kl: np.ndarray, differences: np.ndarray, variance: np.ndarray,
+                   min_kl: float = 0.05) -> tuple[int, np.ndarray]:
+    """The label-free choice of the surrogate coordinate: of the used latent coordinates
+    (mean KL (latent,) above ``min_kl``; all if none is), the one whose changes between
+    consecutive windows ``differences`` (n, latent) are smallest against its ``variance``
+    (latent,). Returns it and every coordinate's roughness (latent,)."""
+    roughness = (differences ** 2).mean(axis=0) / variance
+    eligible = np.flatnonzero(kl > min_kl)
+    if eligible.size == 0:
+        eligible = np.arange(kl.size)
+    return int(eligible[np.argmin(roughness[eligible])]), roughness
+
+
 def choose_surrogate(model: ConditionalVAE, trajectories: np.ndarray,
                      min_kl: float = 0.05) -> tuple[int, dict[str, list[float]]]:
     """Pick the smoothest used latent coordinate over time (no K labels).
@@ -44,13 +57,11 @@ def choose_surrogate(model: ConditionalVAE, trajectories: np.ndarray,
         mu, logvar = model.encode(batch)
     steps = trajectories.shape[1] - w + 1
     mu = mu.numpy().reshape(trajectories.shape[0], steps, -1)
-    kl = (-0.5 * (1 + logvar - torch.as_tensor(mu.reshape(-1, mu.shape[-1])) ** 2
+    latent = mu.shape[-1]
+    kl = (-0.5 * (1 + logvar - torch.as_tensor(mu.reshape(-1, latent)) ** 2
                   - logvar.exp())).mean(0).numpy()
-    roughness = (np.diff(mu, axis=1) ** 2).mean(axis=(0, 1)) / mu.reshape(-1, mu.shape[-1]).var(0)
-    eligible = np.flatnonzero(kl > min_kl)
-    if eligible.size == 0:
-        eligible = np.arange(mu.shape[-1])
-    dim = int(eligible[np.argmin(roughness[eligible])])
+    dim, roughness = smoothest_used(kl, np.diff(mu, axis=1).reshape(-1, latent),
+                                    mu.reshape(-1, latent).var(0), min_kl)
     return dim, {'kl_per_dim': kl.tolist(), 'roughness_per_dim': roughness.tolist()}
 
 
