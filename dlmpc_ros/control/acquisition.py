@@ -31,6 +31,7 @@ from typing import Protocol
 
 import numpy as np
 
+from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.core import checks
 from dlmpc_ros.core.angles import wrap_angles
 
@@ -64,6 +65,23 @@ class AcquisitionConfig:
     while the servos travel between points can be a transient that dies at once). 2
     locked 4 more of 100 cold starts on one development plant and lost 0.005 on the
     family's random walks (``bench/results/acquisition_confirm.md``): 1 by default."""
+    compare_twins: bool = True
+    """Where the scan locks on a point whose mirror twin (the other branch at the same
+    curve point) it has not tried in this pass, hold there ``compare_periods`` periods,
+    then try the twin as long, and keep the one with the higher median O over the later
+    half of its periods. Without it the scan stops at the first point that passes the
+    lock level, which can be the weaker branch: on some plants a weak pulse at about 0.4
+    O* holds all along the curve at K > 0 (``bench/results/compare_twins.md``)."""
+    compare_periods: int = 4
+    """Periods the scan holds each of the two twins it compares (once the servos are
+    there)."""
+    turn_room: float = 2.0
+    """Room [rad] the scan leaves every servo from the ends of its range: it takes each
+    point at its pi-equivalent nearest the servo inside ``[low + turn_room, high -
+    turn_room]`` of the angle limits, so that the quarter turn (pi/2) of the tracker's
+    change of branch fits either way round where the laser locks (0: the equivalent
+    nearest the servo, wherever it is; servos that wound toward an end blocked the turn
+    that keeps the pulse)."""
     curve_points: tuple[float, ...] = (-0.25, -0.3, -0.2, -0.15, -0.1, -0.05, 0.0)
     """Parameters u on the tracking curve (K units) the curve scan visits, each with its
     mirror twin, in this order (from the simulator: c(-0.25) starts a pulse from noise at
@@ -73,10 +91,12 @@ class AcquisitionConfig:
         if not 0 < self.lock_fraction < 1:
             raise ValueError(f'lock_fraction must be in (0, 1), got {self.lock_fraction}')
         if min(self.patience, self.dwell_periods, self.scan_points, self.travel_periods,
-               self.level_window, self.confirm_periods) < 1:
+               self.level_window, self.confirm_periods, self.compare_periods) < 1:
             raise ValueError('patience, dwell_periods, scan_points, travel_periods, '
-                             'level_window and confirm_periods must be >= 1')
+                             'level_window, confirm_periods and compare_periods must be >= 1')
         checks.positive(self, 'arrive_tolerance')
+        if not (np.isfinite(self.turn_room) and self.turn_room >= 0):
+            raise ValueError(f'turn_room must be >= 0 rad, got {self.turn_room}')
         if not self.curve_points or not np.all(np.isfinite(self.curve_points)):
             raise ValueError('curve_points must be a non-empty list of finite values')
         if not (0 <= self.relock_fraction < 1 and 0 < self.level_decay <= 1):
@@ -93,6 +113,9 @@ class ScanPoint:
     """The tracking curve's branch it lies on (1: the curve, -1: its twin; 0: none)."""
     estimate: float = float('nan')
     """Its curve parameter on the tracker's estimate axis (K units; NaN: none)."""
+    pair: int = -1
+    """Points of a pass with the same ``pair`` (>= 0) are mirror twins, compared before
+    the scan lets go (-1: none)."""
 
 
 class ScanSource(Protocol):
@@ -138,15 +161,18 @@ class LockSupervisor:
     ``threshold`` is the objective O (E/M units) at and above which the laser counts as
     locked; ``source`` gives the points of each pass of the scan. In the period O passes
     the threshold under the scan, :attr:`locked_at` is the point the scan was at or on
-    its way to (else None)."""
+    its way to (else None). With ``limits`` (the servos' :class:`AngleLimits`) the scan
+    keeps ``config.turn_room`` from the ends of their range."""
 
     def __init__(self, threshold: float, source: ScanSource,
-                 config: AcquisitionConfig | None = None) -> None:
+                 config: AcquisitionConfig | None = None,
+                 limits: AngleLimits | None = None) -> None:
         if not threshold > 0:
             raise ValueError(f'lock threshold must be > 0, got {threshold}')
         self.config = config or AcquisitionConfig()
         self.threshold = float(threshold)
         self.source = source
+        self.limits = limits
         self.unlocked = 0
         self.level = 0.0  # the laser's recent best O (a decaying maximum)
         self._latest: deque[float] = deque(maxlen=self.config.level_window)  # finite O
@@ -155,6 +181,12 @@ class LockSupervisor:
         self._order: list[ScanPoint] = []
         self._target: ScanPoint | None = None
         self._dwell = self._travel = 0
+        #: the comparison of two twins under way: '' (none), 'first' (holding the point
+        #: that locked), 'twin' (trying its twin), 'back' (returning to the first)
+        self._phase = ''
+        self._first: ScanPoint | None = None
+        self._first_objective = 0.0
+        self._seen: list[float] = []  # O measured at the point being compared
 
     def locked(self, objective: float) -> bool:
         """Whether O is at the lock threshold and at ``relock_fraction`` of the level."""
@@ -172,17 +204,95 @@ class LockSupervisor:
         if locked and self._target is not None \
                 and self._locked_run < self.config.confirm_periods:
             # over the level while scanning: hold course until it has lasted
-            return self._target.angles
+            return self._toward(np.asarray(current, float))
+        if self._phase or (locked and self._target is not None and self._twin_untried()):
+            compared = self._compare(objective, locked, np.asarray(current, float))
+            if compared is not None:
+                return compared
+            locked = self.locked(objective)
         if locked:
             self.source.note_locked(surrogate)
             self.locked_at = self._target
             self.unlocked = 0
-            self._order, self._target = [], None
+            self._order, self._target, self._phase = [], None, ''
             return None
         self.unlocked += 1
         if self.unlocked <= self.config.patience:
             return None
         return self._scan(np.asarray(current, float))
+
+    def _toward(self, current: np.ndarray) -> np.ndarray:
+        """The command toward the scan's point (4,) [rad]: the point itself where its
+        pi-equivalent nearest ``current`` lies inside the limits less ``turn_room``, else
+        a step under pi/2 toward the nearest equivalent inside them (the servo limits take
+        the equivalent nearest the servo, so a farther one is reached in such steps)."""
+        angles = self._target.angles
+        room = self.config.turn_room
+        if self.limits is None or room <= 0:
+            return angles
+        low, high = self.limits.low + room, self.limits.high - room
+        if high - low < np.pi:  # too narrow a range to choose
+            return angles
+        nearest = angles + np.pi * np.round((current - angles) / np.pi)
+        if np.all((nearest >= low) & (nearest <= high)):
+            return angles  # the servo limits take that equivalent themselves
+        goal = np.where(nearest > high, nearest - np.pi * np.ceil((nearest - high) / np.pi),
+                        nearest)
+        goal = np.where(goal < low, goal + np.pi * np.ceil((low - goal) / np.pi), goal)
+        return current + np.clip(goal - current, -np.pi / 4, np.pi / 4)
+
+    def _twin_untried(self) -> bool:
+        """Whether the scan's point has a twin still to come in this pass (and comparing
+        is on)."""
+        return (self.config.compare_twins and self._target is not None
+                and self._target.pair >= 0
+                and any(p.pair == self._target.pair for p in self._order))
+
+    def _arrived(self, current: np.ndarray) -> bool:
+        """Whether the servos are at the scan's point (or have travelled long enough)."""
+        gap = wrap_angles(current - self._target.angles)  # pi-periodic
+        return (float(np.max(np.abs(gap))) <= self.config.arrive_tolerance
+                or self._travel >= self.config.travel_periods)
+
+    def _compare(self, objective: float, locked: bool, current: np.ndarray) -> np.ndarray | None:
+        """A period of the comparison of two twins: the angles to hold, or None once it is
+        decided (the scan's point is then the one to keep, or the scan goes on)."""
+        cfg = self.config
+        settled = cfg.compare_periods - cfg.compare_periods // 2  # the later half
+        if not self._phase:  # the scan just locked at a point whose twin is to come
+            self._phase, self._first, self._seen = 'first', self._target, []
+        if self._phase == 'back':  # at the first point again: keep it once it locks
+            self._travel += 1
+            if self._arrived(current):
+                if locked:
+                    self._phase = ''
+                    return None
+                self._dwell += 1
+                if self._dwell >= cfg.dwell_periods:  # it did not lock again: scan on
+                    self._phase = ''
+                    return self._scan(current)
+            return self._toward(current)
+        if self._phase == 'twin':
+            self._travel += 1
+            if not self._arrived(current):
+                return self._toward(current)
+        self._seen.append(float(objective) if np.isfinite(objective) else 0.0)
+        if len(self._seen) < cfg.compare_periods:
+            return self._toward(current)
+        level = float(np.median(self._seen[-settled:]))
+        self._seen = []
+        if self._phase == 'first':
+            self._first_objective = level
+            twin = next(p for p in self._order if p.pair == self._target.pair)
+            self._order.remove(twin)
+            self._phase, self._target, self._travel = 'twin', twin, 0
+            return self._toward(current)
+        if level > self._first_objective and locked:  # the twin is better: keep it
+            self._phase = ''
+            return None
+        self._phase, self._target = 'back', self._first
+        self._travel = self._dwell = 0
+        return self._toward(current)
 
     def _scan(self, current: np.ndarray) -> np.ndarray:
         if self._target is not None:
@@ -191,12 +301,12 @@ class LockSupervisor:
             there = (np.max(np.abs(gap)) <= self.config.arrive_tolerance
                      or self._travel >= self.config.travel_periods)
             if not there:
-                return self._target.angles
+                return self._toward(current)
             self._dwell += 1
             if self._dwell < self.config.dwell_periods:
-                return self._target.angles
+                return self._toward(current)
         if not self._order:
             self._order = self.source.pass_order(current)
         self._target = self._order.pop(0)
         self._dwell = self._travel = 0
-        return self._target.angles
+        return self._toward(current)

@@ -108,7 +108,7 @@ class DLMPCController:
                       if self.tracker is None else
                       CurveScan(self.tracker, cfg.acquisition.curve_points))
             self.acquisition = LockSupervisor(lock_fraction * target_objective, source,
-                                              cfg.acquisition)
+                                              cfg.acquisition, cfg.limits)
         self.monitor = PredictionMonitor(mprnn, cfg)
         self.outer = OuterLoop(self.monitor, cfg)
         self.modes: list[Mode] = [

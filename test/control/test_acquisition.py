@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from dlmpc_ros.control.acquisition import (AcquisitionConfig, LockSupervisor, MapScan,
-                                           scan_surrogates)
+                                           ScanPoint, scan_surrogates)
 from dlmpc_ros.control.dlmpc import DLMPCController
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.limits import AngleLimits
@@ -76,6 +76,7 @@ def test_a_point_the_servos_cannot_reach_is_left_after_travel_periods():
 @pytest.mark.parametrize('bad', [{'lock_fraction': 0.0}, {'lock_fraction': 1.0},
                                  {'patience': 0}, {'dwell_periods': 0}, {'scan_points': 0},
                                  {'level_window': 0}, {'confirm_periods': 0},
+                                 {'compare_periods': 0}, {'turn_room': -1.0},
                                  {'curve_points': ()}, {'curve_points': (0.1, np.nan)}])
 def test_bad_acquisition_settings_are_rejected(bad):
     with pytest.raises(ValueError):
@@ -126,3 +127,81 @@ def test_with_a_tracking_curve_the_scan_visits_the_curve_and_its_twin_and_tracki
     step = ctrl.step(np.r_[6.0, 30.0, angles], 0.0)           # O = 0.2: locked at c(-0.25)
     assert step.mode == 'track' and ctrl.tracker.active
     assert ctrl.tracker.branch == 1 and ctrl.tracker.estimate == pytest.approx(-0.25)
+
+
+class _Pairs:
+    """A scan source of fixed points (a pass is always the same list)."""
+
+    def __init__(self, *points: ScanPoint) -> None:
+        self.points = points
+
+    def pass_order(self, current: np.ndarray) -> list[ScanPoint]:
+        return list(self.points)
+
+    def note_locked(self, surrogate: float) -> None:
+        pass
+
+
+_CURVE = ScanPoint(np.zeros(4), 1, -0.25, 0)
+_TWIN = ScanPoint(np.full(4, 0.5), -1, 0.25, 0)
+_NEXT = ScanPoint(np.full(4, 1.0), 1, -0.3, 1)
+
+
+def _scan_locked_at_curve_point(twin_objective: float) -> tuple[LockSupervisor, list]:
+    """Scan, lock at the curve point (O 0.2), hold it, try its twin (O ``twin_objective``);
+    the commands of each period."""
+    sup = LockSupervisor(0.1, _Pairs(_CURVE, _TWIN, _NEXT),
+                         AcquisitionConfig(patience=1, dwell_periods=2, compare_periods=2))
+    here = np.full(4, -1.0)
+    sup.step(0.01, here, 0.0)
+    commands = [sup.step(0.01, here, 0.0)]                    # scanning: the curve point
+    commands.append(sup.step(0.2, _CURVE.angles, 0.0))        # locked: hold it
+    commands.append(sup.step(0.2, _CURVE.angles, 0.0))        # held: now its twin
+    commands.append(sup.step(0.0, _CURVE.angles, 0.0))        # on the way
+    commands.append(sup.step(twin_objective, _TWIN.angles, 0.0))  # there
+    commands.append(sup.step(twin_objective, _TWIN.angles, 0.0))  # judged
+    return sup, commands
+
+
+def test_the_scan_compares_a_locked_point_with_its_twin_and_keeps_the_better():
+    sup, commands = _scan_locked_at_curve_point(0.3)
+    for command, point in zip(commands, (_CURVE, _CURVE, _TWIN, _TWIN, _TWIN)):
+        np.testing.assert_allclose(command, point.angles)
+    assert commands[-1] is None and sup.locked_at is _TWIN and sup.unlocked == 0
+
+
+def test_a_weaker_twin_sends_the_scan_back_to_the_point_that_locked():
+    sup, commands = _scan_locked_at_curve_point(0.15)         # locked, but weaker
+    np.testing.assert_allclose(commands[-1], _CURVE.angles)   # back
+    assert sup.locked_at is None
+    # still at the twin (O over the level): not handed over until the servos are back
+    np.testing.assert_allclose(sup.step(0.15, _TWIN.angles, 0.0), _CURVE.angles)
+    assert sup.step(0.2, _CURVE.angles, 0.0) is None and sup.locked_at is _CURVE
+
+
+def test_without_comparison_the_scan_lets_go_at_the_first_point_that_locks():
+    sup = LockSupervisor(0.1, _Pairs(_CURVE, _TWIN),
+                         AcquisitionConfig(patience=1, compare_twins=False))
+    sup.step(0.01, np.full(4, -1.0), 0.0)
+    sup.step(0.01, np.full(4, -1.0), 0.0)
+    assert sup.step(0.2, _CURVE.angles, 0.0) is None and sup.locked_at is _CURVE
+
+
+def test_the_scan_keeps_turn_room_from_the_ends_of_the_servo_range():
+    """A servo wound near an end (alpha_p at -5.17 rad of the +-2 pi range) is not left
+    at the point's nearest equivalent (1.1 - 2 pi), where a quarter turn one way would
+    leave the range, but brought to the equivalent inside the room (1.1 - pi)."""
+    limits = AngleLimits()
+    point = ScanPoint(np.array([0.0, 0.0, 0.0, 1.1]))
+    here = np.array([0.0, 0.0, 0.0, -5.17])
+    sup = LockSupervisor(0.1, _Pairs(point), AcquisitionConfig(patience=1, dwell_periods=50),
+                         limits)
+    sup.step(0.01, here, 0.0)
+    for _ in range(30):
+        here = limits.apply(here, sup.step(0.01, here, 0.0))
+    assert here[3] == pytest.approx(1.1 - np.pi)
+    assert limits.low + 2.0 <= here[3] <= limits.high - 2.0
+    near_middle = np.array([0.0, 0.0, 0.0, 0.5])   # inside the room: the point as it is
+    sup = LockSupervisor(0.1, _Pairs(point), AcquisitionConfig(patience=1), limits)
+    sup.step(0.01, near_middle, 0.0)
+    np.testing.assert_allclose(sup.step(0.01, near_middle, 0.0), point.angles)
