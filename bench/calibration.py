@@ -86,13 +86,19 @@ def main(argv: list[str] | None = None) -> int:
         results['plants'][plant] = rows
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / 'calibration.json').write_text(json.dumps(results, indent=1, default=str))
-    lines = ['| plant | budget [round trips] | sinusoidal | random_walk | pairs |',
-             '|---|---|---|---|---|']
+    lines = ['| plant | budget [round trips] | sinusoidal | random_walk | pairs fit / held out '
+             '| held-out RMSE shipped -> corrected | correction (a, b, c) | prior knots |',
+             '|---|---|---|---|---|---|---|---|']
     for plant, rows in results['plants'].items():
         for budget, row in rows.items():
-            pairs = row['adapt']['pairs'] if 'adapt' in row else '-'
+            a = row.get('adapt')
+            extra = ('- | - | - | -' if a is None else
+                     f"{a['pairs']} / {a['held_out_pairs']} | {a['held_out_rmse_before']:.3f} -> "
+                     f"{a['held_out_rmse_corrected']:.3f} | "
+                     f"{', '.join(f'{c:.4f}' for c in a['correction'])} | "
+                     f"{a['prior_knots_set']}")
             lines.append(f"| family-{plant} | {budget or 'shipped models'} | "
-                         f"{row['sinusoidal']:.3f} | {row['random_walk']:.3f} | {pairs} |")
+                         f"{row['sinusoidal']:.3f} | {row['random_walk']:.3f} | {extra} |")
     (args.out / 'calibration.md').write_text('\n'.join(lines) + '\n')
     print('\n'.join(lines))
     return 0

@@ -103,13 +103,18 @@ def adapt(args: argparse.Namespace, show: bool) -> int:
         return 2
     report = adapt_models(args.bag, args.models_dir, args.out,
                           AdaptConfig(round_trips=args.round_trips, seed=args.seed,
+                                      fine_tune=args.fine_tune,
                                       epochs=4 if args.quick else AdaptConfig.epochs),
                           show_progress=show)
     print(f"adapt: {report['pairs']} pairs to fit and {report['held_out_pairs']} held out "
           f"(the run's last periods) from {report['control_periods']} control periods "
           f"({report['round_trips_used']} round trips); predictor RMSE on the held-out pairs "
-          f"{report['held_out_rmse_before']:.4f} -> {report['held_out_rmse_after']:.4f} "
-          f"(members kept at epochs {report['epochs_kept']}; 0: shipped); rotation prior at "
+          f"{report['held_out_rmse_before']:.4f}, corrected "
+          f"{report['held_out_rmse_corrected']:.4f} (correction "
+          f"{[round(c, 4) for c in report['correction']]}; all 0: none kept)"
+          + (f", fine-tuned {report['held_out_rmse_after']:.4f} (members kept at epochs "
+             f"{report['epochs_kept']}; 0: shipped)" if args.fine_tune else '')
+          + f"; rotation prior at "
           f"{report['prior_knots_set']} knots; wrote {args.out}", flush=True)
     return 0
 
@@ -128,6 +133,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--bag', type=Path, help='adapt: the recorded bag of the laser')
     p.add_argument('--round-trips', type=int, default=0,
                    help='adapt: use the first N round trips of the bag (0: all)')
+    p.add_argument('--fine-tune', action='store_true',
+                   help='adapt: also fine-tune the predictor on the bag (measured to plan '
+                        'worse; the correction alone is the default)')
     p.add_argument('--workers', type=int, default=default_workers(),
                    help='response: simulate its data on this many local Dask workers '
                         '(default: the cores)')

@@ -67,7 +67,9 @@ class DLMPCController:
     ``config.acquisition`` None) there is no acquisition scan. ``curve`` is the tracking
     curve ``(grid (n,), angles (n, 4), steady O (n,))`` of the ``track_curve.npz`` model
     file; without it, without ``target_objective`` or with ``config.tracking`` None,
-    there is no curve tracking.
+    there is no curve tracking. ``rotation_prior`` and ``turn_correction`` are what a
+    calibration from a bag learned (:mod:`dlmpc_ros.training.adapt`): the rotation the
+    curve starts from, the planner's correction (3,) to start from.
     """
 
     name = 'dlmpc'
@@ -76,8 +78,10 @@ class DLMPCController:
                  target_objective: float | None = None,
                  curve: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
                  response: ResponseEnsemble | None = None,
-                 rotation_prior: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+                 rotation_prior: tuple[np.ndarray, np.ndarray] | None = None,
+                 turn_correction: np.ndarray | None = None) -> None:
         self.config = config or DLMPCConfig()
+        self.turn_correction = turn_correction
         self.target_objective = target_objective
         self.curve = curve
         self.response = response
@@ -101,7 +105,7 @@ class DLMPCController:
                 self.tracker.rotation.start_from(*rotation_prior)
         self.planner: RotationPlanner | None = None
         if self.tracker is not None and response is not None and cfg.planner is not None:
-            self.planner = RotationPlanner(response, cfg.planner)
+            self.planner = RotationPlanner(response, cfg.planner, turn_correction)
             self.tracker.plan_rotation = self.planner.plan
         if target_objective is not None and cfg.acquisition is not None:
             source = (MapScan(self.map_angles, cfg.acquisition.scan_points)
@@ -121,7 +125,8 @@ class DLMPCController:
     def fresh(self) -> DLMPCController:
         """A controller with the same models and settings and no history."""
         return DLMPCController(self.kmap, self.model, self.config, self.target_objective,
-                               self.curve, self.response, self.rotation_prior)
+                               self.curve, self.response, self.rotation_prior,
+                               self.turn_correction)
 
     def map_angles(self, surrogate: float) -> np.ndarray:
         """The map's angles (4,) [rad] for a surrogate value."""

@@ -39,15 +39,17 @@ def load_estimator(models_dir: Path) -> SurrogateEstimator:
 
 def load_dlmpc(models_dir: Path, config: DLMPCConfig | None = None) -> DLMPCController:
     """The DL-MPC controller from ``models_dir/{kmap,mprnn}.pt`` and, unless tracking is
-    off, ``models_dir/track_curve.npz``, ``models_dir/rotation_prior.npz`` if a
-    calibration left one, and (unless the planner is off too) ``models_dir/response.pt``
-    (no file holds the true K of a run or a plant's parameters)."""
+    off, ``models_dir/track_curve.npz``, ``models_dir/rotation_prior.npz`` and
+    ``models_dir/turn_correction.npz`` if a calibration left them, and (unless the
+    planner is off too) ``models_dir/response.pt`` (no file holds the true K of a run or a
+    plant's parameters)."""
     from dlmpc_ros.control.dlmpc import DLMPCController
     from dlmpc_ros.learning.checkpoint import ModelFileError, regenerate_hint
     from dlmpc_ros.learning.curve import FILE_NAME, load_curve
     from dlmpc_ros.learning.kmap import load_kmap
     from dlmpc_ros.learning.mprnn import load_mprnn
     from dlmpc_ros.learning.rotation_prior import load_rotation_prior
+    from dlmpc_ros.learning.turn_correction import load_turn_correction
     config = config or DLMPCConfig()
     kmap, payload = load_kmap(Path(models_dir) / 'kmap.pt')
     metrics = payload.get('metrics')
@@ -64,10 +66,11 @@ def load_dlmpc(models_dir: Path, config: DLMPCConfig | None = None) -> DLMPCCont
             curve = load_curve(Path(models_dir) / FILE_NAME)
         except (FileNotFoundError, ValueError) as err:
             raise ModelFileError(f'{err} (or turn curve tracking off)') from None
-    response = prior = None
+    response = prior = correction = None
     if config.tracking is not None:
         try:
             prior = load_rotation_prior(Path(models_dir))
+            correction = load_turn_correction(Path(models_dir))
         except ValueError as err:
             raise ModelFileError(str(err)) from None
         if config.planner is not None:
@@ -75,7 +78,8 @@ def load_dlmpc(models_dir: Path, config: DLMPCConfig | None = None) -> DLMPCCont
             response, _ = load_response(Path(models_dir) / 'response.pt')
     return DLMPCController(kmap, load_mprnn(Path(models_dir) / 'mprnn.pt', kmap), config,
                            target_objective=float(target) if target else None, curve=curve,
-                           response=response, rotation_prior=prior)
+                           response=response, rotation_prior=prior,
+                           turn_correction=correction)
 
 
 def oracle_table(baselines: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

@@ -11,7 +11,8 @@ data they were trained on). It moves only when that beats ``min_gain``; else it 
 After each move it compares the O measured once the laser settled with the O before,
 against the prediction, and learns a correction of the predictor for this laser online
 (:class:`OnlineCorrection`: a least-squares line in ``delta``, fit to the run's own
-moves, that the next plans add): the predictor is the prior, the laser corrects it. A
+moves, that the next plans add, starting from what a calibration from a bag found, if
+any): the predictor is the prior, the laser corrects it. A
 move after which O fell under ``undo_below`` of what it was is taken back at once.
 Planning costs one small forward pass of the ensemble.
 """
@@ -53,6 +54,10 @@ class PlannerConfig:
     predicted any turn gains on this laser."""
     memory: int = 30
     """Recent moves the online correction is fit to."""
+    prior_moves: float = 10.0
+    """Weight of a calibrated correction (``turn_correction.npz`` of ``dlmpc-train
+    adapt``), in moves of the run: the online fit is pulled toward it as strongly as
+    toward this many moves (without one it is pulled toward 0 with weight 1)."""
     undo_below: float = 0.85
     """A move after which O fell under this fraction of its O before is taken back."""
     explore: bool = False
@@ -67,6 +72,7 @@ class PlannerConfig:
         checks.positive(self, 'radius')
         checks.non_negative(self, 'spread_penalty')
         checks.non_negative(self, 'min_gain')
+        checks.positive(self, 'prior_moves')
         if not 0 < self.undo_below <= 1:
             raise ValueError(f'undo_below must be in (0, 1], got {self.undo_below}')
 
@@ -77,13 +83,22 @@ class OnlineCorrection:
     plans (the planner uses it less its value at 0, so ``a`` only absorbs what the drift
     of K did between the two measurements of a move). ``b`` learns a predictor that is
     wrong about which way to turn; ``c`` (with ``magnitude``) one that is wrong about
-    whether turning pays at all, as on a laser whose best rotation is the curve's own."""
+    whether turning pays at all, as on a laser whose best rotation is the curve's own.
 
-    def __init__(self, memory: int, ridge: float = 1.0, magnitude: bool = True) -> None:
+    ``prior`` (3,), a calibration's coefficients for this laser (``a, b, c``), is where the
+    fit starts and what the ridge pulls it toward, with weight ``ridge`` (default: 0 and
+    weight 1)."""
+
+    def __init__(self, memory: int, ridge: float = 1.0, magnitude: bool = True,
+                 prior: np.ndarray | None = None) -> None:
         self.moves: deque[tuple[float, float]] = deque(maxlen=memory)  # (delta, error)
         self.ridge = ridge
         self.magnitude = magnitude
-        self.coefficients = np.zeros(3 if magnitude else 2)
+        terms = 3 if magnitude else 2
+        self.prior = np.zeros(terms) if prior is None else np.asarray(prior, float)[:terms]
+        if self.prior.shape != (terms,) or not np.all(np.isfinite(self.prior)):
+            raise ValueError(f'the correction prior must be 3 finite values, got {prior}')
+        self.coefficients = self.prior.copy()
 
     def _terms(self, delta: np.ndarray) -> np.ndarray:
         """(n, 2 or 3) regressors of turns (n,): 1, delta and |delta| in units of 0.1 rad."""
@@ -93,11 +108,18 @@ class OnlineCorrection:
 
     def add(self, delta: float, error: float) -> None:
         """One move's turn and its error (measured minus predicted change of log O)."""
-        self.moves.append((float(delta), float(error)))
+        self.extend([delta], [error])
+
+    def extend(self, deltas, errors) -> None:
+        """Moves' turns and errors (n,), then one fit to the last ``memory`` moves."""
+        self.moves.extend(zip(np.asarray(deltas, float).tolist(),
+                              np.asarray(errors, float).tolist()))
+        if not self.moves:
+            return
         d, e = np.array(self.moves).T
         x = self._terms(d)
         self.coefficients = np.linalg.solve(x.T @ x + self.ridge * np.eye(x.shape[1]),
-                                            x.T @ e)
+                                            x.T @ e + self.ridge * self.prior)
 
     def __call__(self, delta: np.ndarray) -> np.ndarray:
         return self._terms(delta) @ self.coefficients
@@ -106,12 +128,15 @@ class OnlineCorrection:
 class RotationPlanner:
     """Plans turns of the tracking curve with the steady-response predictor."""
 
-    def __init__(self, model: ResponseEnsemble, config: PlannerConfig | None = None) -> None:
+    def __init__(self, model: ResponseEnsemble, config: PlannerConfig | None = None,
+                 correction_prior: np.ndarray | None = None) -> None:
         self.model = model
         self.config = config or PlannerConfig()
         self.recent: deque[tuple[float, float]] = deque(maxlen=self.config.measurements)
-        self.correction = OnlineCorrection(self.config.memory,
-                                           magnitude=self.config.online_magnitude)
+        calibrated = correction_prior is not None
+        self.correction = OnlineCorrection(
+            self.config.memory, ridge=self.config.prior_moves if calibrated else 1.0,
+            magnitude=self.config.online_magnitude, prior=correction_prior)
         self.moves = 0
         self.undone = 0
         self._rng = np.random.default_rng(self.config.seed)

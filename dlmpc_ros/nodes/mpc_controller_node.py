@@ -6,7 +6,7 @@ Subscribes ``/laser/state`` and ``/estimator/birefringence``; once per control p
 publishes ``/laser/angles_cmd`` and ``/controller/status``. It never reads the true K:
 it has no subscription to ``/laser/birefringence`` or ``/laser/sim_truth``, and none of
 the files it loads (``kmap.pt``, ``mprnn.pt``, ``track_curve.npz``, ``response.pt``,
-``rotation_prior.npz``) holds the K of a run.
+``rotation_prior.npz``, ``turn_correction.npz``) holds the K of a run.
 """
 
 from __future__ import annotations

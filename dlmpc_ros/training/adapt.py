@@ -13,11 +13,18 @@ parameter: a hardware laser has neither) this module
    period before), giving the inputs ``(u, theta_a, log E_a, log M_a, theta_b -
    theta_a)`` and the target ``log(O_b / O_a)`` of the steady-response predictor, as its
    own training pairs are (:mod:`dlmpc_ros.training.stages.response`);
-3. fine-tunes every member of the shipped predictor on the pairs of the run's first
-   ``1 - validation`` share of periods, with an L2 pull of ``prior_weight`` toward its
-   shipped weights (the pretrained model is the prior, the laser corrects it), and keeps
-   each member at the epoch that predicts the pairs of the last ``validation`` share (held
-   out, later in the run) best, or at its shipped weights when no epoch beats them;
+3. fits what the shipped predictor gets wrong on this laser, the correction ``a + b * d +
+   c * |d|`` of its predicted change of log O in the turn ``d`` that the planner also
+   learns online (:class:`~dlmpc_ros.control.rotation_planner.OnlineCorrection`), to the
+   pairs of the run's first ``1 - validation`` share of periods, and keeps it
+   (``turn_correction.npz``: the planner starts from it) only where it predicts the pairs
+   of the last ``validation`` share (held out, later in the run) better than no
+   correction (else no such file: the planner starts as shipped);
+   with ``fine_tune``, it also fine-tunes every member of the predictor on those pairs,
+   with an L2 pull of ``prior_weight`` toward its shipped weights, keeping each member at
+   the epoch that predicts the held-out pairs best (off by default: the fine-tuned
+   predictor predicted the held-out pairs better and planned worse,
+   ``bench/results/calibration/``);
 4. at each knot of the learned rotation, bins the settled states recorded near it by
    rotation (``prior_bin`` wide) and takes the bin of the highest mean O as the rotation
    the controller starts from (``rotation_prior.npz``), only where it beats the bin of
@@ -25,7 +32,8 @@ parameter: a hardware laser has neither) this module
    (else 0: no evidence that a turn pays there);
 
 and writes a models folder that ``bringup --models-dir`` and ``dlmpc-evaluate
---models-dir`` run with: the shipped files, the adapted ``response.pt`` and the prior.
+--models-dir`` run with: the shipped files, ``response.pt`` (adapted with ``fine_tune``),
+the correction and the prior.
 """
 
 from __future__ import annotations
@@ -42,6 +50,7 @@ import torch
 
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.control.rotation import locate
+from dlmpc_ros.control.rotation_planner import OnlineCorrection
 from dlmpc_ros.control.tracking import TrackingConfig
 from dlmpc_ros.core import checks
 from dlmpc_ros.learning.checkpoint import save_checkpoint
@@ -49,6 +58,8 @@ from dlmpc_ros.learning.curve import FILE_NAME, load_curve
 from dlmpc_ros.learning.fit import fit
 from dlmpc_ros.learning.response import LOST, ResponseEnsemble, load_response
 from dlmpc_ros.learning.rotation_prior import save_rotation_prior
+from dlmpc_ros.learning.turn_correction import FILE_NAME as CORRECTION_FILE
+from dlmpc_ros.learning.turn_correction import save_turn_correction
 from dlmpc_ros.recording.reader import read_bag
 
 
@@ -68,6 +79,11 @@ class AdaptConfig:
     """Largest RMS distance [rad] of a state from the rotated curve family."""
     pulse_fraction: float = 0.3
     """A state holds a pulse when its O is at least this fraction of the bag's best."""
+    fine_tune: bool = False
+    """Also fine-tune the predictor's members on the laser's pairs (measured to plan worse
+    on held-out plants; the correction alone is the default)."""
+    ridge: float = 1.0
+    """Ridge weight (toward 0) of the correction's least-squares fit."""
     epochs: int = 40
     lr: float = 5e-4
     prior_weight: float = 1e-2
@@ -89,6 +105,7 @@ class AdaptConfig:
         checks.positive(self, 'same_point')
         checks.positive(self, 'misfit')
         checks.positive(self, 'lr')
+        checks.positive(self, 'ridge')
         checks.non_negative(self, 'prior_weight')
         checks.fraction(self, 'pulse_fraction')
         if not 0 < self.validation < 1:
@@ -182,7 +199,9 @@ def adapt_models(bag: Path, models_dir: Path, out: Path, cfg: AdaptConfig | None
                          f'to calibrate from ({y.size} to fit, {y_val.size} held out); record '
                          'a longer run of `bringup --controller explore`')
     before, before_val = _rmse(model, x, y), _rmse(model, x_val, y_val)
-    epochs_kept = fine_tune(model, x, y, x_val, y_val, cfg, show_progress)
+    coefficients, corrected_val = turn_correction(model, x, y, x_val, y_val, cfg)
+    epochs_kept = ([0] * len(model.members) if not cfg.fine_tune else
+                   fine_tune(model, x, y, x_val, y_val, cfg, show_progress))
     after, after_val = _rmse(model, x, y), _rmse(model, x_val, y_val)
     knots = np.linspace(grid[0], grid[-1], TrackingConfig().rotation_knots)
     values = rotation_prior(states, knots, cfg)
@@ -194,15 +213,37 @@ def adapt_models(bag: Path, models_dir: Path, out: Path, cfg: AdaptConfig | None
               'settled_states': int(states['u'].size), 'pairs': int(y.size),
               'held_out_pairs': int(y_val.size), 'rmse_before': before, 'rmse_after': after,
               'held_out_rmse_before': before_val, 'held_out_rmse_after': after_val,
-              'epochs_kept': epochs_kept,
+              'epochs_kept': epochs_kept, 'correction': coefficients.tolist(),
+              'held_out_rmse_corrected': corrected_val,
               'prior_knots_set': int(np.count_nonzero(values)), 'settings': asdict(cfg),
               'wall_seconds': round(time.monotonic() - started, 1)}
     metrics = {**payload.get('metrics', {}), 'adapted': report}
     save_checkpoint(out / 'response.pt', 'response', model.state_dict(), payload['config'],
                     metrics, payload.get('data_fingerprint', ''))
     save_rotation_prior(out, knots, values, report)
+    (out / CORRECTION_FILE).unlink(missing_ok=True)  # none kept: the planner's own start
+    if np.any(coefficients):
+        save_turn_correction(out, coefficients, report)
     (out / 'adapt.json').write_text(json.dumps(report, indent=2))
     return report
+
+
+def turn_correction(model: ResponseEnsemble, x: np.ndarray, y: np.ndarray,
+                    x_val: np.ndarray, y_val: np.ndarray, cfg: AdaptConfig
+                    ) -> tuple[np.ndarray, float]:
+    """The correction (3,) of ``model``'s predicted change of log O in the turn, fit to
+    pairs ``x`` (m, 5), ``y`` (m,) as the planner fits it online (all of them, ridge
+    ``cfg.ridge``), and the RMSE of the corrected prediction on the held-out pairs; zeros
+    (and the uncorrected RMSE) when it does not predict them better than no correction."""
+    errors = y - _predict(model, x)
+    correction = OnlineCorrection(max(len(y), 1), ridge=cfg.ridge)
+    correction.extend(x[:, 4], errors)
+    held_out = y_val - _predict(model, x_val)
+    uncorrected = float(np.sqrt(np.mean(held_out ** 2)))
+    corrected = float(np.sqrt(np.mean((held_out - correction(x_val[:, 4])) ** 2)))
+    if not corrected < uncorrected:
+        return np.zeros(3), uncorrected
+    return correction.coefficients, corrected
 
 
 def fine_tune(model: ResponseEnsemble, x: np.ndarray, y: np.ndarray, x_val: np.ndarray,
@@ -255,7 +296,11 @@ def _member_error(member: torch.nn.Module, held: tuple[torch.Tensor, torch.Tenso
     return error
 
 
-def _rmse(model, x: np.ndarray, y: np.ndarray) -> float:
+def _predict(model, x: np.ndarray) -> np.ndarray:
+    """The ensemble's mean predicted change of log O (m,) for pairs ``x`` (m, 5)."""
     with torch.no_grad():
-        predicted = model(torch.as_tensor(x, dtype=torch.float32)).mean(-1).numpy()
-    return float(np.sqrt(np.mean((predicted - y) ** 2)))
+        return model(torch.as_tensor(x, dtype=torch.float32)).mean(-1).numpy().astype(float)
+
+
+def _rmse(model, x: np.ndarray, y: np.ndarray) -> float:
+    return float(np.sqrt(np.mean((_predict(model, x) - y) ** 2)))

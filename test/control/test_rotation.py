@@ -106,3 +106,22 @@ def test_the_online_correction_learns_that_no_turn_pays_on_this_laser():
             assert (turned < -0.005).all()
         else:
             assert np.allclose(turned, 0.0, atol=1e-3)
+
+
+def test_a_calibrated_correction_is_where_the_online_fit_starts_and_what_it_is_pulled_to():
+    prior = np.array([0.0, -0.02, -0.01])     # from a bag: turning up, and turning at all, lose
+    correction = OnlineCorrection(memory=10, ridge=10.0, prior=prior)
+    np.testing.assert_allclose(correction.coefficients, prior)
+    correction.add(0.1, 0.0)                  # one move that disagrees barely moves it
+    assert abs(correction.coefficients[1] - prior[1]) < 0.005
+    unpulled = OnlineCorrection(memory=10)
+    unpulled.add(0.1, 0.0)
+    np.testing.assert_allclose(unpulled.coefficients, 0.0, atol=1e-12)
+    batch = OnlineCorrection(memory=10)       # extend fits as the same adds one by one do
+    batch.extend([0.1, -0.05, 0.1], [-0.03, 0.01, -0.02])
+    single = OnlineCorrection(memory=10)
+    for delta, error in zip([0.1, -0.05, 0.1], [-0.03, 0.01, -0.02]):
+        single.add(delta, error)
+    np.testing.assert_allclose(batch.coefficients, single.coefficients)
+    with pytest.raises(ValueError, match='3 finite'):
+        OnlineCorrection(memory=10, prior=np.array([0.0, np.nan, 0.0]))

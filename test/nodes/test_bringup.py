@@ -134,6 +134,10 @@ def test_an_exploring_run_records_every_state_message_and_calibrates_the_models(
     assert report['round_trips_used'] >= 3000
     controller = load_dlmpc(adapted)
     assert controller.rotation_prior is not None and controller.planner is not None
+    if any(report['correction']):       # kept: the planner starts from it
+        np.testing.assert_allclose(controller.turn_correction, report['correction'])
+    else:                               # none kept: no file, the planner as shipped
+        assert controller.turn_correction is None
 
 
 @pytest.mark.parametrize('delay', [0.3, 1.5, 4.0])

@@ -1,5 +1,6 @@
 """Calibration from a bag: where the recorded angles lie on the rotated curve, the pairs
-that fine-tune the predictor, and the rotation prior (the bag itself: test_bringup)."""
+that correct and fine-tune the predictor, the turn correction and its file, and the
+rotation prior (the bag itself: test_bringup)."""
 
 import numpy as np
 import pytest
@@ -9,8 +10,9 @@ from dlmpc_ros.control.rotation import locate
 from dlmpc_ros.learning.curve import load_curve
 from dlmpc_ros.paths import models_dir
 from dlmpc_ros.learning.response import load_response
+from dlmpc_ros.learning.turn_correction import load_turn_correction, save_turn_correction
 from dlmpc_ros.training.adapt import (AdaptConfig, _rmse, fine_tune, laser_pairs,
-                                      rotation_prior, split_periods)
+                                      rotation_prior, split_periods, turn_correction)
 
 
 @pytest.fixture(scope='module')
@@ -110,3 +112,38 @@ def test_fine_tune_keeps_what_helps_on_held_out_pairs_and_the_shipped_weights_ot
     shipped = [p.detach().clone() for p in model.parameters()]
     assert fine_tune(model, x, y, x_val, y_val, cfg, show_progress=False) == [0] * len(kept)
     assert all(torch.equal(p, q) for p, q in zip(model.parameters(), shipped))
+
+
+def test_the_turn_correction_is_fit_to_what_the_predictor_misses_and_kept_if_it_predicts():
+    rng = np.random.default_rng(1)
+    model, _ = load_response(models_dir() / 'response.pt')
+    x, y = _pairs(rng, 300, 0.0)
+    x_val, y_val = _pairs(rng, 100, 0.0)
+    y, y_val = y - 0.2 * x[:, 4], y_val - 0.2 * x_val[:, 4]   # turning up loses here
+    coefficients, corrected = turn_correction(model, x, y, x_val, y_val, AdaptConfig())
+    slope = coefficients[1] / 0.1                               # per rad
+    assert -0.21 < slope < -0.19 and abs(coefficients[2]) < 0.01
+    assert corrected < 0.01 < _rmse(model, x_val, y_val)
+    # held-out pairs where turning up gains instead: the correction does not carry over
+    coefficients, corrected = turn_correction(model, x, y, x_val, y_val + 0.4 * x_val[:, 4],
+                                              AdaptConfig())
+    assert not coefficients.any()
+    assert corrected == pytest.approx(_rmse(model, x_val, y_val + 0.4 * x_val[:, 4]))
+
+
+def test_a_turn_correction_file_round_trips_and_a_malformed_one_stops_the_controller(tmp_path):
+    from dlmpc_ros.control.factory import load_dlmpc
+    from dlmpc_ros.learning.checkpoint import ModelFileError
+    import shutil
+    folder = tmp_path / 'models'
+    shutil.copytree(models_dir(), folder)
+    save_turn_correction(folder, np.array([0.001, -0.02, -0.01]), {'bag': 'test'})
+    np.testing.assert_allclose(load_turn_correction(folder), [0.001, -0.02, -0.01])
+    controller = load_dlmpc(folder)
+    np.testing.assert_allclose(controller.planner.correction.coefficients, [0.001, -0.02, -0.01])
+    np.savez(folder / 'turn_correction.npz', coefficients=np.zeros(2), schema_version=1)
+    with pytest.raises(ModelFileError, match='turn correction .* is malformed; remake it'):
+        load_dlmpc(folder)
+    (folder / 'turn_correction.npz').write_bytes(b'not a zip')
+    with pytest.raises(ModelFileError, match='turn correction'):
+        load_dlmpc(folder)
