@@ -35,7 +35,7 @@ from typing import Protocol
 
 import numpy as np
 
-from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.limits import AngleLimits, into_range
 from dlmpc_ros.core import checks
 from dlmpc_ros.core.angles import wrap_angles
 
@@ -241,9 +241,7 @@ class LockSupervisor:
         nearest = angles + np.pi * np.round((current - angles) / np.pi)
         if np.all((nearest >= low) & (nearest <= high)):
             return angles  # the servo limits take that equivalent themselves
-        goal = np.where(nearest > high, nearest - np.pi * np.ceil((nearest - high) / np.pi),
-                        nearest)
-        goal = np.where(goal < low, goal + np.pi * np.ceil((low - goal) / np.pi), goal)
+        goal = into_range(nearest, low, high)
         return current + np.clip(goal - current, -np.pi / 4, np.pi / 4)
 
     def _twin_untried(self) -> bool:

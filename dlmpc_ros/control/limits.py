@@ -42,11 +42,15 @@ class AngleLimits:
         current = np.clip(np.asarray(current, float), self.low, self.high)
         wanted = np.asarray(wanted, float)
         goal = wanted + math.pi * np.round((current - wanted) / math.pi)  # nearest of all
-        # beyond a limit: the equivalent just inside it (the nearest inside the range)
-        goal = np.where(goal > self.high, goal - math.pi * np.ceil((goal - self.high) / math.pi),
-                        goal)
-        goal = np.where(goal < self.low, goal + math.pi * np.ceil((self.low - goal) / math.pi),
-                        goal)
+        goal = into_range(goal, self.low, self.high)
         reachable = (goal >= self.low) & (goal <= self.high)   # a range narrower than pi
         goal = np.where(reachable, goal, np.clip(wanted, self.low, self.high))
         return current + np.clip(goal - current, -self.max_step, self.max_step)
+
+
+def into_range(goal: np.ndarray, low: float, high: float) -> np.ndarray:
+    """Angles (any shape) [rad] moved by whole multiples of pi to the equivalent just
+    inside ``[low, high]`` where they lie beyond a limit (the nearest inside the range;
+    still outside where the range is narrower than pi), unchanged elsewhere."""
+    goal = np.where(goal > high, goal - math.pi * np.ceil((goal - high) / math.pi), goal)
+    return np.where(goal < low, goal + math.pi * np.ceil((low - goal) / math.pi), goal)

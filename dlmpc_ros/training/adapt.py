@@ -202,7 +202,8 @@ def adapt_models(bag: Path, models_dir: Path, out: Path, cfg: AdaptConfig | None
     coefficients, corrected_val = turn_correction(model, x, y, x_val, y_val, cfg)
     epochs_kept = ([0] * len(model.members) if not cfg.fine_tune else
                    fine_tune(model, x, y, x_val, y_val, cfg, show_progress))
-    after, after_val = _rmse(model, x, y), _rmse(model, x_val, y_val)
+    after, after_val = ((_rmse(model, x, y), _rmse(model, x_val, y_val)) if cfg.fine_tune
+                        else (before, before_val))  # the shipped predictor, unchanged
     knots = np.linspace(grid[0], grid[-1], TrackingConfig().rotation_knots)
     values = rotation_prior(states, knots, cfg)
     if out.resolve() != models_dir.resolve():
@@ -242,7 +243,7 @@ def turn_correction(model: ResponseEnsemble, x: np.ndarray, y: np.ndarray,
     uncorrected = float(np.sqrt(np.mean(held_out ** 2)))
     corrected = float(np.sqrt(np.mean((held_out - correction(x_val[:, 4])) ** 2)))
     if not corrected < uncorrected:
-        return np.zeros(3), uncorrected
+        return np.zeros_like(correction.coefficients), uncorrected
     return correction.coefficients, corrected
 
 
