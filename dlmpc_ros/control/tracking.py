@@ -144,18 +144,6 @@ class TrackingConfig:
     entry_trial_below: float = 0.8
     """... if O is then under this fraction of the curve's own steady O at the estimate
     (the O the curve gave on the simulator; without it, always; 0: never)."""
-    end_turn_dither: float = 0.03
-    """Where the estimate rests at an end of the curve (the laser's best point lies at or
-    past it, as on many lasers that are not the nominal cavity, and the dither along the
-    curve is cut in half there), the dither turns the curve at that end by +- this
-    [rad] instead, and the comparison moves the rotation learned there (0: off)."""
-    end_turn_blocks: int = 12
-    """Dither blocks of turning at an end before the dither along the curve is tried
-    again (K may have moved back inside)."""
-    turn_dither_every: int = 0
-    """If > 0: also away from the ends, after this many dither blocks along the curve,
-    ``end_turn_blocks`` blocks of turning (coordinate ascent on the curve point and its
-    rotation; 0: turning only at an end)."""
     plan_every: int = 4
     """Dither blocks between two requests for a turn of the curve (with a planner)."""
     rotation_knots: int = 13
@@ -192,8 +180,6 @@ class TrackingConfig:
             raise ValueError('need mirror_margin >= 0, 0 < turn_step <= pi/2, free_turn >= 0, '
                              '0 < turn_guard <= 1, turn_cooldown >= 1, verify >= 1, '
                              'branch_gain > -1 and 0 <= trial_drop < 1')
-        if not (self.end_turn_dither >= 0 and self.end_turn_blocks >= 3):
-            raise ValueError('need end_turn_dither >= 0 and end_turn_blocks >= 3')
         if not (self.plan_every >= 1 and self.rotation_knots >= 2 and self.rotation_limit > 0):
             raise ValueError('need plan_every >= 1, rotation_knots >= 2 and '
                              'rotation_limit > 0')
@@ -259,10 +245,7 @@ class CurveTracker:
             + self.rotation(u)
 
     def _command(self) -> np.ndarray:
-        """This period's angles: the point at the estimate, with the dither (along the
-        curve, or as a turn at its end)."""
-        if self._turning_end:
-            return self.curve(self.estimate) + self._sign * self.config.end_turn_dither
+        """This period's angles: the point at the estimate, with the dither."""
         return self.curve(self.estimate + self._sign * self.config.dither)
 
     def expected_objective(self, s: float) -> float:
@@ -462,8 +445,6 @@ class CurveTracker:
         self._blocks.clear()
         self._block_count = 0                # blocks closed since (for the plans)
         self._step, self._last_move = self.config.step, 0.0  # Rprop step and last sign
-        self._turning_end = False            # the dither turns the curve at its end
-        self._end_blocks = 0                 # blocks of it so far
 
     def _leave(self, failed: bool) -> None:
         """Hand back and wait a cooldown (doubled, up to 64 x, after a failed entry)."""
@@ -487,17 +468,6 @@ class CurveTracker:
         return max(cfg.deadband,
                    cfg.noise_deadband * sigma * np.sqrt(1.5 / cfg.block_mean))
 
-    def _at_end(self) -> bool:
-        """Whether the estimate rests at an end of the curve."""
-        return self.estimate <= self.grid[0] or self.estimate >= self.grid[-1]
-
-    def _switch_dither(self, turning_end: bool) -> None:
-        """Dither as a turn at the curve's end, or along the curve again: blocks are
-        compared afresh, with the first Rprop step."""
-        self._turning_end, self._end_blocks = turning_end, 0
-        self._blocks.clear()
-        self._step, self._last_move = self.config.step, 0.0
-
     def _end_block(self, objective: float) -> None:
         """Close a dither half: compare it with its neighbours and move the estimate; every
         ``plan_every`` blocks, turn the curve at the estimate's point by the planner's
@@ -517,20 +487,8 @@ class CurveTracker:
                 self._step, self._last_move, move = _rprop(
                     difference, self._step, self._last_move, cfg.grow, cfg.shrink,
                     cfg.min_step, cfg.max_step)
-                if self._turning_end:  # the same rule on the turn at the end [rad]
-                    self.rotation.move(self.branch * self.estimate, move)
-                else:
-                    self.estimate = float(np.clip(self.estimate + move, self.grid[0],
-                                                  self.grid[-1]))
-                    if cfg.end_turn_dither > 0 and self._at_end():
-                        self._switch_dither(turning_end=True)
-        self._end_blocks += 1
-        if self._turning_end:
-            if self._end_blocks >= cfg.end_turn_blocks:
-                self._switch_dither(turning_end=False)
-        elif (cfg.turn_dither_every and cfg.end_turn_dither > 0
-              and self._end_blocks >= cfg.turn_dither_every):
-            self._switch_dither(turning_end=True)
+                self.estimate = float(np.clip(self.estimate + move, self.grid[0],
+                                              self.grid[-1]))
         if (self.plan_rotation is not None and self._age > cfg.settle
                 and self._block_count % cfg.plan_every == 0):
             u = self.branch * self.estimate

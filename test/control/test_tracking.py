@@ -175,32 +175,6 @@ def test_the_survey_moves_along_the_curve_a_spacing_per_period():
     assert s.max() == pytest.approx(GRID[-1]) and s.min() == pytest.approx(GRID[0])
 
 
-def test_at_the_curve_s_end_the_dither_turns_the_curve_and_learns_the_rotation():
-    """A toy laser whose best point lies past the curve's end and wants the curve turned
-    by 0.15 rad there: the estimate rests at the end, and the turn dither finds the
-    rotation (without it the rotation stays 0 and O short of its best)."""
-    def laser(cmd, k=0.5, best_turn=0.15):
-        turn = cmd[1] - 0.1                  # the toy curve's second angle is 0.1
-        s = (cmd[0] - turn) / 2
-        return 0.2 - 0.3 * (s - k) ** 2 - 0.5 * (turn - best_turn) ** 2
-
-    def run(end_turn_dither: float):
-        cfg = TrackingConfig(entry_patience=1, settle=0, start=0.2, mirror=False,
-                             end_turn_dither=end_turn_dither, end_turn_blocks=12)
-        tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg)
-        o = 0.15
-        for _ in range(1500):
-            o = laser(tracker.step(o))
-        return tracker, o
-
-    tracker, o = run(0.03)
-    assert tracker.estimate == pytest.approx(GRID[-1])
-    assert tracker.rotation(GRID[-1]) == pytest.approx(0.15, abs=0.04)
-    still, o_still = run(0.0)
-    assert still.rotation(GRID[-1]) == 0.0
-    assert o > o_still + 0.005
-
-
 def test_interrupt_stops_tracking():
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1,
                            config=TrackingConfig(entry_patience=1, cooldown=3))
