@@ -226,7 +226,6 @@ class CurveTracker:
         self.planned = 0.0
         self._survey_wait = 0
         self._survey_seen: list[tuple[float, float]] = []  # (point, O)
-        self._survey_best: float | None = None  # where the survey ends
         self._dwell = 0
         self._recentre()          # estimate at start; age, guard, dither and steps reset
 
@@ -364,48 +363,26 @@ class CurveTracker:
         return self._short >= self.config.survey_patience and self._survey_wait == 0
 
     def _start_survey(self) -> np.ndarray:
-        """Visit the curve at ``survey_spacing`` from the end nearest the estimate, moving
-        there through the curve's points in between, one per period (a jump to the end
-        in one period costs a dip of O for a round trip: under half of O* on the nominal
-        cavity, for a move of 0.25 rad)."""
+        """Visit the curve at ``survey_spacing`` from the end nearest the estimate."""
         points = np.arange(self.grid[0], self.grid[-1] + 1e-9, self.config.survey_spacing)
         if self.grid[-1] - self.estimate < self.estimate - self.grid[0]:
             points = points[::-1]
-        self._survey = [(u, False) for u in self._path(self.estimate, float(points[0]))]
-        self._survey += [(float(p), True) for p in points]
-        self._survey_seen, self._survey_best = [], None
+        self._survey, self._survey_seen = [float(p) for p in points], []
         self._dwell, self._short = -self.config.survey_dwell, 0  # first point: twice as long
-        return self.curve(self._survey[0][0])
-
-    def _path(self, start: float, end: float) -> list[float]:
-        """Curve points from ``start`` toward ``end``, ``survey_spacing`` apart, both
-        left out."""
-        gap = end - start
-        count = int(np.ceil(abs(gap) / self.config.survey_spacing))
-        return [start + gap * i / count for i in range(1, count)]
+        return self.curve(self._survey[0])
 
     def _survey_step(self, objective: float) -> np.ndarray:
-        """A period of the survey: a point passed through, or one visited for
-        ``survey_dwell`` periods; at the end it moves back to the best point it saw (the
-        same way) and tracking continues from there."""
-        u, visit = self._survey[0]
-        if visit:
-            self._dwell += 1
-            if self._dwell < self.config.survey_dwell:
-                return self.curve(u)
-            self._survey_seen.append((u, objective))
+        self._dwell += 1
+        if self._dwell >= self.config.survey_dwell:
+            self._survey_seen.append((self._survey.pop(0), objective))
             self._dwell = 0
-        self._survey.pop(0)
-        if not self._survey and self._survey_best is None:
-            self._survey_best = max(self._survey_seen, key=lambda seen: seen[1])[0]
-            self._survey = [(p, False) for p in self._path(u, self._survey_best)]
-        if not self._survey:  # done: continue from the best point seen
-            best = self._survey_best
-            self._recentre()
-            self.estimate = best
-            self._survey_wait = self.config.survey_cooldown
-            return self._command()
-        return self.curve(self._survey[0][0])
+            if not self._survey:  # done: continue from the best point seen
+                best = max(self._survey_seen, key=lambda seen: seen[1])[0]
+                self._recentre()
+                self.estimate = best
+                self._survey_wait = self.config.survey_cooldown
+                return self._command()
+        return self.curve(self._survey[0])
 
     def _maybe_enter(self, objective: float, locked: bool) -> np.ndarray | None:
         if self._wait > 0:
@@ -429,8 +406,7 @@ class CurveTracker:
         self._age, self._low, self._short = 0, 0, 0
         self._settling: list[float] = []  # O measured while settling after entry
         self._branch_best = 0.0  # best block O since the branch was last chosen
-        #: survey points still to pass through (False) or visit (True)
-        self._survey: list[tuple[float, bool]] = []
+        self._survey: list[float] = []  # survey points still to visit
         self._entry_trial = False  # the other branch is still to be tried after entry
         # the start point on the branch the tracker is on (its twin on the mirror branch)
         self.estimate = self.branch * float(np.clip(self.config.start, self.grid[0],

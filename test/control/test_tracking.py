@@ -156,25 +156,6 @@ def test_survey_leaves_a_plateau_for_the_best_point_of_the_curve():
     assert stuck.estimate < 0.0
 
 
-def test_the_survey_moves_along_the_curve_a_spacing_per_period():
-    """The survey reaches its first point (the curve's end) and, at its end, the best
-    point through the curve's points in between: no period moves the estimate by more
-    than the survey's spacing (a jump of the servos costs a dip of O)."""
-    cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0, survey_patience=5,
-                         survey_spacing=0.05, survey_dwell=2, mirror=False)
-    expected = np.full(GRID.size, 0.2)
-    tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg, expected=expected)
-    commands, surveying = [], []
-    for _ in range(150):
-        commands.append(tracker.step(0.18 if not tracker._survey else 0.17))
-        surveying.append(bool(tracker._survey))
-    assert any(surveying) and not surveying[-1]
-    s = np.array([c[0] / 2 for c in commands])  # the toy curve tells its parameter
-    moves = np.abs(np.diff(s))
-    assert moves.max() <= cfg.survey_spacing + 2 * cfg.dither + 1e-9
-    assert s.max() == pytest.approx(GRID[-1]) and s.min() == pytest.approx(GRID[0])
-
-
 def test_interrupt_stops_tracking():
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1,
                            config=TrackingConfig(entry_patience=1, cooldown=3))
