@@ -15,8 +15,8 @@ periods (moving onto the curve at ``start``), and hands back when O under tracki
 below ``guard`` x the O measured just before it took over (then waits ``cooldown``
 periods, twice as long after each failed entry, before trying again). Where the curve is
 flat the estimate can rest on a plateau away from K; when O stays below ``survey_ratio``
-x the curve's own steady O at the estimate, it surveys the whole curve once and
-continues from the best point it saw.
+x the curve's own steady O at the estimate (on this laser's own scale of O), it surveys
+the whole curve once and continues from the best point it saw.
 
 The curve is best for K < 0 only: the cavity's mirror symmetry
 (:mod:`dlmpc_ros.core.symmetry`) gives its twin ``m(s) = c(-s) + pi/2`` (every element
@@ -103,6 +103,13 @@ class TrackingConfig:
     survey_ratio: float = 0.93
     """O below this fraction of the curve's own steady O at the estimate, for
     ``survey_patience`` periods, means the estimate sits on a plateau away from K: survey."""
+    survey_scale: str = 'own'
+    """'own': the survey level is ``survey_ratio`` x the curve's own steady O x the best
+    ratio of measured O to the curve's O over the last ``survey_cooldown`` periods of
+    tracking (the laser's own scale of O); 'curve': without that ratio (the nominal
+    cavity's scale, under which a laser with less O surveyed every ``survey_cooldown``
+    periods and one with more never did). Chosen on the development plants: 0.956
+    against 0.932 (``bench/results/survey_scale.md``)."""
     survey_patience: int = 20
     """Periods under the survey level before the survey starts."""
     survey_spacing: float = 0.05
@@ -171,6 +178,8 @@ class TrackingConfig:
                 or min(self.survey_patience, self.survey_dwell, self.survey_cooldown) < 1:
             raise ValueError('survey_ratio must be in (0, 1], survey_spacing > 0 and the '
                              'survey periods >= 1')
+        if self.survey_scale not in ('curve', 'own'):
+            raise ValueError(f"survey_scale must be 'curve' or 'own', got {self.survey_scale!r}")
         if not self.entry_trial_below >= 0:
             raise ValueError(f'entry_trial_below must be >= 0, got {self.entry_trial_below}')
         if not (self.mirror_margin >= 0 and 0 < self.turn_step <= QUARTER_TURN
@@ -225,6 +234,8 @@ class CurveTracker:
         self.plan_rotation: Callable[[float, float], float] | None = None
         self.planned = 0.0
         self._survey_wait = 0
+        #: measured O over the curve's O, recent tracking periods (the laser's own scale)
+        self._scale: deque[float] = deque(maxlen=self.config.survey_cooldown)
         self._survey_seen: list[tuple[float, float]] = []  # (point, O)
         self._dwell = 0
         self._recentre()          # estimate at start; age, guard, dither and steps reset
@@ -358,7 +369,11 @@ class CurveTracker:
             self._survey_wait -= 1
         if self.expected is None:
             return False
-        level = self.config.survey_ratio * self.expected_objective(self.estimate)
+        expected = self.expected_objective(self.estimate)
+        level = self.config.survey_ratio * expected
+        if self.config.survey_scale == 'own' and expected > 0 and np.isfinite(objective):
+            self._scale.append(objective / expected)
+            level *= max(self._scale)
         self._short = self._short + 1 if not objective >= level else 0
         return self._short >= self.config.survey_patience and self._survey_wait == 0
 

@@ -131,9 +131,10 @@ def test_guard_recentres_then_hands_back_and_waits_a_growing_cooldown():
 
 def test_survey_leaves_a_plateau_for_the_best_point_of_the_curve():
     """A landscape flat around the start and peaked far from it: the local dither cannot
-    see the peak, the survey finds it."""
+    see the peak, the survey finds it (on the curve's scale of O: this toy laser never
+    shows more than its plateau, so on its own scale it would not survey)."""
     cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.2, survey_patience=10,
-                         survey_spacing=0.05, survey_dwell=2)
+                         survey_spacing=0.05, survey_dwell=2, survey_scale='curve')
     expected = np.full(GRID.size, 0.2)
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg, expected=expected)
 
@@ -154,6 +155,38 @@ def test_survey_leaves_a_plateau_for_the_best_point_of_the_curve():
         cmd = stuck.step(o)
         o = plateau(cmd)
     assert stuck.estimate < 0.0
+
+
+def test_the_survey_level_can_follow_the_laser_s_own_scale_of_o():
+    """A laser with 30 % less O than the curve's own, resting at its peak: on the curve's
+    scale it is always 'under the survey level' and surveys again and again; on its own
+    scale (the best O / curve O it showed lately) it never does."""
+    expected = np.full(GRID.size, 0.2)
+
+    def surveys(scale: str) -> int:
+        cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0, survey_patience=10,
+                             survey_cooldown=50, mirror=False, survey_scale=scale)
+        tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg, expected=expected)
+        o, started = 0.14, 0
+        for _ in range(600):
+            before = bool(tracker._survey)
+            o = 0.7 * _objective(tracker.step(o), 0.0)
+            started += bool(tracker._survey) and not before
+        return started
+
+    assert surveys('curve') >= 3
+    assert surveys('own') == 0
+    # on its own scale it still surveys when its O falls under what it showed lately
+    cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0, survey_patience=10,
+                         survey_cooldown=200, mirror=False)
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg, expected=expected)
+    o, surveyed = 0.14, False
+    for t in range(400):
+        o = (0.7 if t < 200 else 0.6) * _objective(tracker.step(o), 0.0)
+        surveyed |= t >= 200 and bool(tracker._survey)
+    assert surveyed
+    with pytest.raises(ValueError, match='survey_scale'):
+        TrackingConfig(survey_scale='nominal')
 
 
 def test_interrupt_stops_tracking():
