@@ -163,9 +163,10 @@ def test_the_survey_level_can_follow_the_laser_s_own_scale_of_o():
     scale (the best O / curve O it showed lately) it never does."""
     expected = np.full(GRID.size, 0.2)
 
-    def surveys(scale: str) -> int:
+    def surveys(scale: str, quantile: float = 1.0) -> int:
         cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0, survey_patience=10,
-                             survey_cooldown=50, mirror=False, survey_scale=scale)
+                             survey_cooldown=50, mirror=False, survey_scale=scale,
+                             survey_scale_quantile=quantile)
         tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg, expected=expected)
         o, started = 0.14, 0
         for _ in range(600):
@@ -175,7 +176,7 @@ def test_the_survey_level_can_follow_the_laser_s_own_scale_of_o():
         return started
 
     assert surveys('curve') >= 3
-    assert surveys('own') == 0
+    assert surveys('own') == 0 and surveys('own', 0.9) == 0
     # on its own scale it still surveys when its O falls under what it showed lately
     cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0, survey_patience=10,
                          survey_cooldown=200, mirror=False)
@@ -187,6 +188,9 @@ def test_the_survey_level_can_follow_the_laser_s_own_scale_of_o():
     assert surveyed
     with pytest.raises(ValueError, match='survey_scale'):
         TrackingConfig(survey_scale='nominal')
+    for quantile in (0.0, 1.5):
+        with pytest.raises(ValueError, match='survey_scale_quantile'):
+            TrackingConfig(survey_scale_quantile=quantile)
 
 
 def test_interrupt_stops_tracking():
