@@ -381,7 +381,11 @@ class CurveTracker:
         level = self.config.survey_ratio * expected
         if self.config.survey_scale == 'own' and expected > 0 and np.isfinite(objective):
             self._scale.append(objective / expected)
-            level *= float(np.quantile(self._scale, self.config.survey_scale_quantile))
+            quantile = self.config.survey_scale_quantile
+            # the best ratio is the quantile 1; max() is 13 x cheaper than np.quantile on a
+            # deque of 300 (6 against 83 us a period)
+            level *= max(self._scale) if quantile == 1 else float(np.quantile(self._scale,
+                                                                               quantile))
         self._short = self._short + 1 if not objective >= level else 0
         return self._short >= self.config.survey_patience and self._survey_wait == 0
 

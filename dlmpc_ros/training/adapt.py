@@ -200,10 +200,11 @@ def adapt_models(bag: Path, models_dir: Path, out: Path, cfg: AdaptConfig | None
                          'a longer run of `bringup --controller explore`')
     before, before_val = _rmse(model, x, y), _rmse(model, x_val, y_val)
     coefficients, corrected_val = turn_correction(model, x, y, x_val, y_val, cfg)
-    epochs_kept = ([0] * len(model.members) if not cfg.fine_tune else
-                   fine_tune(model, x, y, x_val, y_val, cfg, show_progress))
-    after, after_val = ((_rmse(model, x, y), _rmse(model, x_val, y_val)) if cfg.fine_tune
-                        else (before, before_val))  # the shipped predictor, unchanged
+    if cfg.fine_tune:
+        epochs_kept = fine_tune(model, x, y, x_val, y_val, cfg, show_progress)
+        after, after_val = _rmse(model, x, y), _rmse(model, x_val, y_val)
+    else:  # the shipped predictor, unchanged
+        epochs_kept, after, after_val = [0] * len(model.members), before, before_val
     knots = np.linspace(grid[0], grid[-1], TrackingConfig().rotation_knots)
     values = rotation_prior(states, knots, cfg)
     if out.resolve() != models_dir.resolve():
