@@ -112,9 +112,15 @@ class TrackingConfig:
     against 0.932 (``bench/results/survey_scale.md``)."""
     survey_scale_quantile: float = 1.0
     """Which quantile of those recent ratios is the laser's scale (1: the best). Measured
-    on the development plants: 0.9 costs 0.002 without noise and halves what 1 % noise on
-    E and M costs (0.010 against 0.017; ``bench/results/survey_scale.md``): a setting
-    for a noisy detector."""
+    on the development plants with single-period ratios and a single-block trial: 0.9
+    cost 0.002 without noise and halved what 1 % noise on E and M cost (0.010 against
+    0.017; ``bench/results/survey_scale.md``); ``survey_scale_window`` and
+    ``trial_blocks`` now do more for it."""
+    survey_scale_window: int = 10
+    """Each of those ratios is the mean over this many consecutive tracking periods (1: one
+    period's): the best of 300 single noisy periods sits about three standard deviations
+    of the noise above the laser's typical ratio and raises the level. Chosen with
+    ``trial_blocks`` on the development plants (``bench/results/noise_levels.md``)."""
     survey_patience: int = 20
     """Periods under the survey level before the survey starts."""
     survey_spacing: float = 0.05
@@ -149,6 +155,14 @@ class TrackingConfig:
     trial_drop: float = 0.08
     """Relative fall of O under its best since the branch was chosen that makes the
     tracker try the other branch (0: only the estimate decides)."""
+    trial_blocks: int = 2
+    """The trial compares the mean O of the last this many dither blocks (an even number
+    spans both signs of the dither) with the best such mean since the branch was chosen
+    (1: a block's O against the best block; the best of many single noisy blocks sits
+    some standard deviations of the noise above the laser's O, so noise alone made the
+    tracker try the twin). Chosen with ``survey_scale_window`` on the development plants:
+    1 % noise on E and M costs 0.004 with both, 0.017 with neither, at 0.002 without
+    noise (``bench/results/noise_levels.md``)."""
     entry_trial: bool = True
     """Once tracking that began where the acquisition scan locked has settled, try the
     other branch once (the scan stops at the first point that passes the lock level,
@@ -186,6 +200,10 @@ class TrackingConfig:
         if not 0 < self.survey_scale_quantile <= 1:
             raise ValueError('survey_scale_quantile must be in (0, 1], got '
                              f'{self.survey_scale_quantile}')
+        if self.trial_blocks < 1:
+            raise ValueError(f'trial_blocks must be >= 1, got {self.trial_blocks}')
+        if self.survey_scale_window < 1:
+            raise ValueError(f'survey_scale_window must be >= 1, got {self.survey_scale_window}')
         if self.survey_scale not in ('curve', 'own'):
             raise ValueError(f"survey_scale must be 'curve' or 'own', got {self.survey_scale!r}")
         if not self.entry_trial_below >= 0:
@@ -244,6 +262,8 @@ class CurveTracker:
         self._survey_wait = 0
         #: measured O over the curve's O, recent tracking periods (the laser's own scale)
         self._scale: deque[float] = deque(maxlen=self.config.survey_cooldown)
+        #: the last ``survey_scale_window`` single-period ratios, averaged into ``_scale``
+        self._scale_window: deque[float] = deque(maxlen=self.config.survey_scale_window)
         self._survey_seen: list[tuple[float, float]] = []  # (point, O)
         self._dwell = 0
         self._recentre()          # estimate at start; age, guard, dither and steps reset
@@ -351,8 +371,10 @@ class CurveTracker:
         cfg = self.config
         if not cfg.mirror or self.turner.wait > 0:
             return False
+        recent = (sum(self._trial_values) / len(self._trial_values) if self._trial_values
+                  else objective)
         return (self.branch * self.estimate > cfg.mirror_margin
-                or objective < (1 - cfg.trial_drop) * self._branch_best)
+                or recent < (1 - cfg.trial_drop) * self._branch_best)
 
     def _turning(self, objective: float) -> np.ndarray:
         """A period of a change of branch: the turn's command (or, while the new branch is
@@ -369,6 +391,7 @@ class CurveTracker:
         if event in (KEPT, RETURNED, ABANDONED):
             self._restart_dither()
             self._branch_best = 0.0  # the branch is chosen anew: its best from here on
+            self._trial_values.clear()
             self._age = min(self._age, self.config.settle)  # let the guard settle again
         return self.curve(self.estimate) if command is None else command
 
@@ -380,7 +403,8 @@ class CurveTracker:
         expected = self.expected_objective(self.estimate)
         level = self.config.survey_ratio * expected
         if self.config.survey_scale == 'own' and expected > 0 and np.isfinite(objective):
-            self._scale.append(objective / expected)
+            self._scale_window.append(objective / expected)
+            self._scale.append(sum(self._scale_window) / len(self._scale_window))
             quantile = self.config.survey_scale_quantile
             # the best ratio is the quantile 1; max() is 13 x cheaper than np.quantile on a
             # deque of 300 (6 against 83 us a period)
@@ -433,6 +457,8 @@ class CurveTracker:
         self._age, self._low, self._short = 0, 0, 0
         self._settling: list[float] = []  # O measured while settling after entry
         self._branch_best = 0.0  # best block O since the branch was last chosen
+        #: O of the last ``trial_blocks`` blocks since then (their mean: the trial's O)
+        self._trial_values: deque[float] = deque(maxlen=self.config.trial_blocks)
         self._survey: list[float] = []  # survey points still to visit
         self._entry_trial = False  # the other branch is still to be tried after entry
         # the start point on the branch the tracker is on (its twin on the mirror branch)
@@ -482,7 +508,10 @@ class CurveTracker:
         self._block_count += 1
         self._sign = -self._sign
         if self._age > cfg.settle and cfg.trial_drop > 0 and np.isfinite(objective):
-            self._branch_best = max(self._branch_best, objective)
+            self._trial_values.append(objective)
+            if len(self._trial_values) == cfg.trial_blocks:
+                self._branch_best = max(self._branch_best, sum(self._trial_values)
+                                        / cfg.trial_blocks)
         if len(self._blocks) == 3 and self._age > cfg.settle:
             (_, before), (sign, middle), (_, after) = self._blocks
             difference = sign * (middle - 0.5 * (before + after))   # O(+) - O(-)

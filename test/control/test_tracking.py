@@ -193,6 +193,31 @@ def test_the_survey_level_can_follow_the_laser_s_own_scale_of_o():
             TrackingConfig(survey_scale_quantile=quantile)
 
 
+def test_noise_alone_does_not_make_a_small_fall_of_o_look_like_a_plateau():
+    """2 % noise on O, the laser resting at its peak, then 5 % less O (above the survey
+    ratio of 0.93): the best of 300 single noisy periods sits 6 % over the laser's O and
+    the fall looks like a plateau, the best of 10-period means does not."""
+    expected = np.full(GRID.size, 0.2)
+
+    def surveys(window: int, noise: float) -> int:
+        cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0, mirror=False,
+                             survey_scale_window=window)
+        tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg, expected=expected)
+        rng, o, started = np.random.default_rng(3), 0.2, 0
+        for t in range(1200):
+            before = bool(tracker._survey)
+            gain = 1.0 if t < 600 else 0.95
+            o = gain * _objective(tracker.step(o), 0.0) * (1 + noise * rng.standard_normal())
+            started += t >= 600 and bool(tracker._survey) and not before
+        return started
+
+    assert surveys(1, 0.0) == 0 and surveys(10, 0.0) == 0
+    assert surveys(1, 0.02) >= 1
+    assert surveys(10, 0.02) == 0
+    with pytest.raises(ValueError, match='survey_scale_window'):
+        TrackingConfig(survey_scale_window=0)
+
+
 def test_interrupt_stops_tracking():
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1,
                            config=TrackingConfig(entry_patience=1, cooldown=3))
@@ -271,6 +296,29 @@ def test_where_the_estimate_says_nothing_a_fall_of_o_makes_the_tracker_try_the_t
     silent = CurveTracker(GRID, ANGLES, threshold=0.1, config=replace(cfg, trial_drop=0.0))
     o_silent, _, _ = _drive_mirrored(silent, drift, 3000, curvature=0.0)
     assert silent.branch == 1 and np.mean(o_silent[-100:]) < 0.185
+
+
+def test_noise_alone_makes_the_tracker_try_the_twin_less_where_the_trial_averages_blocks():
+    """K held on the curve's side, 2 % noise on O: the best of many single noisy blocks
+    sits some standard deviations over the laser's O, so single blocks fall
+    ``trial_drop`` under it by chance and the tracker tries the twin (and turns back);
+    the mean of two blocks against the best such mean does so far less often."""
+    def trials(blocks: int) -> int:
+        cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.15, trial_blocks=blocks,
+                             survey_ratio=1e-6)
+        tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
+        rng, o, current = np.random.default_rng(5), 0.2, None
+        for _ in range(6000):
+            cmd = tracker.step(o, current)
+            current = tracker.limits.apply(cmd if current is None else current, cmd)
+            o = _mirrored_objective(current, -0.15) * (1 + 0.02 * rng.standard_normal())
+        turner = tracker.turner
+        return turner.made + turner.rejected + turner.abandoned
+
+    single, averaged = trials(1), trials(2)
+    assert single >= 4 and averaged <= single / 2
+    with pytest.raises(ValueError, match='trial_blocks'):
+        TrackingConfig(trial_blocks=0)
 
 
 def test_after_an_acquisition_lock_the_tracker_tries_the_other_branch_once():
