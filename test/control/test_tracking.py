@@ -157,6 +157,33 @@ def test_survey_leaves_a_plateau_for_the_best_point_of_the_curve():
     assert stuck.estimate < 0.0
 
 
+def test_a_gliding_survey_reaches_its_first_point_through_the_curve_s_points():
+    """A jump of the servos to the curve's end costs a dip of O; with ``survey_glide`` the
+    survey reaches its first point one ``survey_spacing`` per period, then visits the
+    curve as before and finds the same peak."""
+    def survey_moves(glide: bool) -> tuple[list[float], float]:
+        cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0, survey_patience=10,
+                             survey_spacing=0.05, survey_dwell=2, survey_scale='curve',
+                             mirror=False, survey_glide=glide)
+        tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg,
+                               expected=np.full(GRID.size, 0.2))
+        o, s, moves = 0.2, None, []
+        for _ in range(200):
+            cmd = tracker.step(o)
+            surveying = bool(tracker._survey)
+            if surveying and s is not None:
+                moves.append(abs(cmd[0] / 2 - s))
+            s = cmd[0] / 2
+            o = 0.17 if s < 0.05 else 0.2 - 0.3 * (s - 0.2) ** 2
+        return moves, tracker.estimate
+
+    jumped, found = survey_moves(False)
+    glided, found_gliding = survey_moves(True)
+    assert max(jumped) > 0.2                       # to the curve's end in one period
+    assert max(glided) <= 0.05 + 1e-9
+    assert abs(found - 0.2) < 0.06 and abs(found_gliding - 0.2) < 0.06
+
+
 def test_the_survey_level_can_follow_the_laser_s_own_scale_of_o():
     """A laser with 30 % less O than the curve's own, resting at its peak: on the curve's
     scale it is always 'under the survey level' and surveys again and again; on its own
