@@ -366,23 +366,25 @@ class CurveTracker:
         self._block_values.append(float(objective))
         if self._in_block >= self.config.block:
             self._end_block(float(np.mean(self._block_values)))
-            if (current is not None and self._wants_other_branch(float(objective))
+            if (current is not None and self._wants_other_branch()
                     and self.turner.begin(np.asarray(current, float),
                                           self.branch * self.estimate, float(objective))):
                 return self._turning(float(objective))
         return self._command()
 
-    def _wants_other_branch(self, objective: float) -> bool:
+    def _wants_other_branch(self) -> bool:
         """Whether to try the other branch: the estimate has gone past the margin onto its
-        side, or O has fallen ``trial_drop`` under the best since the branch was chosen
-        (and no turn is cooling down)."""
+        side, or the mean O of the last ``trial_blocks`` blocks has fallen ``trial_drop``
+        under the best such mean since the branch was chosen (and no turn is cooling
+        down)."""
         cfg = self.config
         if not cfg.mirror or self.turner.wait > 0:
             return False
-        recent = (sum(self._trial_values) / len(self._trial_values) if self._trial_values
-                  else objective)
+        # the trial's values and the best are cleared together: no values, no best yet
+        values = self._trial_values
         return (self.branch * self.estimate > cfg.mirror_margin
-                or recent < (1 - cfg.trial_drop) * self._branch_best)
+                or bool(values) and sum(values) / len(values)
+                < (1 - cfg.trial_drop) * self._branch_best)
 
     def _turning(self, objective: float) -> np.ndarray:
         """A period of a change of branch: the turn's command (or, while the new branch is
