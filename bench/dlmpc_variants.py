@@ -19,6 +19,9 @@ Usage::
 (``tracking``, ``acquisition`` and ``planner`` take the fields of their configs;
 ``measurement_noise`` is the run's relative noise on the measured E and M;
 ``models_dir`` a models folder, environment variables such as ``${OUT}`` expanded).
+With ``--lock-starts N`` each variant runs the lock benchmark instead (the first N cold
+starts of ``dlmpc-evaluate --benchmark lock`` on every plant, in blocks of 10) and the
+table gives the starts locked and the median control periods to lock per plant.
 Runs go on Dask (:func:`dlmpc_ros.scaleout.run_tasks`). Writes the runs' metrics (plus
 the fraction of periods in each mode) as JSON and a markdown table of mean O / O* per
 variant, plant group (the nominal cavity; the family plants pooled) and scenario (mean
@@ -31,7 +34,7 @@ import argparse
 import json
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -55,6 +58,17 @@ class VariantRun:
     models_dir: str
 
 
+@dataclass(frozen=True)
+class LockBlock:
+    """A block of cold starts of the lock benchmark for one variant on one plant."""
+
+    variant: str
+    overrides: dict
+    plant: str
+    indices: tuple[int, ...]
+    models_dir: str
+
+
 def plant_and_envelope(plant: str, models_dir: Path) -> tuple[dict, dict]:
     """The plant's physical parameters that differ from the nominal cavity and the
     envelope its ratios divide by."""
@@ -70,30 +84,36 @@ def plant_and_envelope(plant: str, models_dir: Path) -> tuple[dict, dict]:
             cached_plant_envelope(cavity, tables))
 
 
-def run_one(job: VariantRun) -> dict:
-    """One closed-loop run of a variant."""
+def variant_config(overrides: dict, models_dir: str, max_step: float):
+    """A variant's ``(DLMPCConfig, measurement noise, models folder)``."""
     from dlmpc_ros.control.acquisition import AcquisitionConfig
     from dlmpc_ros.control.dlmpc_config import DLMPCConfig
-    from dlmpc_ros.control.factory import load_dlmpc
     from dlmpc_ros.control.limits import AngleLimits
     from dlmpc_ros.control.rotation_planner import PlannerConfig
-    from dlmpc_ros.control.step import MODES
     from dlmpc_ros.control.tracking import TrackingConfig
-    from dlmpc_ros.evaluation.metrics import run_metrics
-    from dlmpc_ros.evaluation.runs import RunSpec, run_fast
 
-    overrides = dict(job.overrides)
+    overrides = dict(overrides)
     noise = float(overrides.pop('measurement_noise', 0.0))  # a run setting, not DLMPCConfig
-    models = Path(os.path.expandvars(overrides.pop('models_dir', job.models_dir)))
+    models = Path(os.path.expandvars(overrides.pop('models_dir', models_dir)))
     for key, kind in (('tracking', TrackingConfig), ('acquisition', AcquisitionConfig),
                       ('planner', PlannerConfig)):
         if isinstance(overrides.get(key), dict):  # from JSON: the config's fields
             overrides[key] = kind(**overrides[key])
+    return DLMPCConfig(limits=AngleLimits(max_step=max_step), **overrides), noise, models
+
+
+def run_one(job: VariantRun) -> dict:
+    """One closed-loop run of a variant."""
+    from dlmpc_ros.control.factory import load_dlmpc
+    from dlmpc_ros.control.step import MODES
+    from dlmpc_ros.evaluation.metrics import run_metrics
+    from dlmpc_ros.evaluation.runs import RunSpec, run_fast
+
     plant, envelope = plant_and_envelope(job.plant, Path(job.models_dir))
-    spec = RunSpec(job.scenario, job.seed, 'dlmpc', round_trips=job.round_trips,
-                   measurement_noise=noise, plant=plant)
-    controller = load_dlmpc(models, DLMPCConfig(limits=AngleLimits(max_step=spec.max_step),
-                                                **overrides))
+    spec = RunSpec(job.scenario, job.seed, 'dlmpc', round_trips=job.round_trips, plant=plant)
+    config, noise, models = variant_config(job.overrides, job.models_dir, spec.max_step)
+    spec = replace(spec, measurement_noise=noise)
+    controller = load_dlmpc(models, config)
     started = time.monotonic()
     record = run_fast(spec, models, controller)
     metrics = run_metrics(record, envelope)
@@ -105,6 +125,45 @@ def run_one(job: VariantRun) -> dict:
             **{k: metrics[k] for k in ('oracle_ratio', 'locked_fraction',
                                        'acquisition_round_trips', 'mean_O',
                                        'step_latency_ms_median')}}
+
+
+def run_lock_block(job: LockBlock) -> dict:
+    """A variant's cold starts (:func:`dlmpc_ros.evaluation.lock_benchmark.run_starts`)."""
+    from dlmpc_ros.evaluation.lock_benchmark import LockSpec, LockTask, run_starts
+
+    plant, envelope = plant_and_envelope(job.plant, Path(job.models_dir))
+    spec = LockSpec('dlmpc', plant=plant)
+    config, noise, models = variant_config(job.overrides, job.models_dir, spec.max_step)
+    if noise:
+        raise ValueError('the lock benchmark runs without measurement noise')
+    starts = run_starts(LockTask(spec, job.indices, str(models), envelope['K'],
+                                 envelope['O_star'], config))
+    return {'variant': job.variant, 'plant': job.plant, 'starts': starts}
+
+
+def lock_table(blocks: list[dict]) -> tuple[str, dict]:
+    """Markdown: variant x plant, starts locked (median control periods to lock), and the
+    metrics per variant and plant."""
+    from dlmpc_ros.evaluation.lock_benchmark import LockSpec, lock_metrics
+
+    plants = list(dict.fromkeys(b['plant'] for b in blocks))
+    summary: dict[str, dict[str, dict]] = {}
+    for variant in dict.fromkeys(b['variant'] for b in blocks):
+        for plant in plants:
+            starts = sorted((s for b in blocks if b['variant'] == variant
+                             and b['plant'] == plant for s in b['starts']),
+                            key=lambda s: s['index'])
+            summary.setdefault(variant, {})[plant] = lock_metrics(starts, LockSpec('dlmpc'))
+    names = [p if p == 'nominal' else f'family-{p}' for p in plants]
+    lines = ['| variant | ' + ' | '.join(names) + ' | locked | worst median periods |',
+             '|---' * (len(plants) + 3) + '|']
+    for variant, per_plant in summary.items():
+        cells = [f"{m['locked']}/{m['starts']} ({m['median_control_periods'] or 0:.1f})"
+                 for m in per_plant.values()]
+        medians = [m['median_control_periods'] or np.inf for m in per_plant.values()]
+        lines.append(f'| {variant} | ' + ' | '.join(cells) + ' | '
+                     f"{sum(m['locked'] for m in per_plant.values())} | {max(medians):.1f} |")
+    return '\n'.join(lines) + '\n', summary
 
 
 def table(runs: list[dict], scenarios: list[str]) -> str:
@@ -141,6 +200,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--models-dir', type=Path, default=ROOT / 'models')
     p.add_argument('--out', type=Path, default=ROOT / 'bench/results/dlmpc_variants.json')
     p.add_argument('--workers', type=int, default=default_workers())
+    p.add_argument('--lock-starts', type=int, default=0, metavar='N',
+                   help='run the lock benchmark (N cold starts per plant, the seed-0 starts '
+                        'of dlmpc-evaluate --benchmark lock) instead of the drift runs')
     args = p.parse_args(argv)
     variants = json.loads(args.variants.read_text())
     scenarios = args.scenario or list(SCENARIOS)
@@ -148,6 +210,8 @@ def main(argv: list[str] | None = None) -> int:
         [str(s) for s in args.plant_family]
     for plant in plants:  # draws and envelopes once, here, before the runs share them
         plant_and_envelope(plant, args.models_dir)
+    if args.lock_starts:
+        return main_lock(args, variants, plants)
     jobs = [VariantRun(name, overrides, plant, scenario, seed, args.round_trips,
                        str(args.models_dir))
             for name, overrides in variants.items() for plant in plants
@@ -162,6 +226,26 @@ def main(argv: list[str] | None = None) -> int:
                                    indent=1))
     args.out.with_suffix('.md').write_text(table(runs, scenarios))
     print(table(runs, scenarios))
+    return 1 if failed else 0
+
+
+def main_lock(args: argparse.Namespace, variants: dict, plants: list[str]) -> int:
+    """The lock benchmark of every variant on every plant, in blocks of 10 starts."""
+    jobs = [LockBlock(name, overrides, plant,
+                      tuple(range(first, min(first + 10, args.lock_starts))),
+                      str(args.models_dir))
+            for name, overrides in variants.items() for plant in plants
+            for first in range(0, args.lock_starts, 10)]
+    results = run_tasks(run_lock_block, jobs, args.workers, desc='lock blocks')
+    failed = [r for r in results if isinstance(r, TaskFailure)]
+    text, summary = lock_table([r for r in results if not isinstance(r, TaskFailure)])
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({'variants': variants, 'plants': plants,
+                                    'lock_starts': args.lock_starts,
+                                    'failed': [str(f) for f in failed], 'summary': summary},
+                                   indent=1))
+    args.out.with_suffix('.md').write_text(text)
+    print(text)
     return 1 if failed else 0
 
 

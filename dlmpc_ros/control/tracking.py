@@ -175,6 +175,12 @@ class TrackingConfig:
     """Once tracking that began where the acquisition scan locked has settled, try the
     other branch once (the scan stops at the first point that passes the lock level,
     which may be the weaker branch; the turn is kept only if it gains) ..."""
+    entry_trial_inner: bool = True
+    """Also try the other branch once after an entry from the inner loop (the laser
+    locked under the map's angles, and tracking began at ``start`` on the curve, which
+    may be the weaker branch). Development plants: 2 more cold starts of 200 locked with
+    a scan ``patience`` of 5, the same with 3 (scans then find the lock first); drift runs
+    0.9575 against 0.9570 (``bench/results/acquisition_pace.md``)."""
     entry_trial_below: float = 0.8
     """... if O is then under this fraction of the curve's own steady O at the estimate
     (the O the curve gave on the simulator; without it, always; 0: never)."""
@@ -470,6 +476,8 @@ class CurveTracker:
         self.active = True
         self._entry_objective = float(np.median(self._recent))
         self._recentre()
+        cfg = self.config
+        self._entry_trial = cfg.entry_trial and cfg.entry_trial_inner and cfg.mirror
         return self._command()
 
     def _recentre(self) -> None:

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dlmpc_ros.control.factory import load_estimator, make_controller
+from dlmpc_ros.control.dlmpc_config import DLMPCConfig
+from dlmpc_ros.control.factory import load_dlmpc, load_estimator, make_controller
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.core import checks
 from dlmpc_ros.core.config import CavityConfig
@@ -91,6 +92,9 @@ class LockTask:
     models_dir: str
     envelope_k: np.ndarray
     envelope_o: np.ndarray
+    config: DLMPCConfig | None = None
+    """The DL-MPC's settings (None: the shipped ones; ``max_step`` is the spec's either
+    way); other controllers ignore it."""
 
 
 def run_starts(task: LockTask) -> list[dict]:
@@ -101,7 +105,8 @@ def run_starts(task: LockTask) -> list[dict]:
     envelope = {'K': task.envelope_k, 'O_star': task.envelope_o}
     limits = AngleLimits(max_step=spec.max_step)
     dlmpc = spec.controller == 'dlmpc'
-    prototype = make_controller('dlmpc', models, limits) if dlmpc else None
+    prototype = (load_dlmpc(models, replace(task.config or DLMPCConfig(), limits=limits))
+                 if dlmpc else None)
     estimator = load_estimator(models) if dlmpc else None
     out = []
     for index in task.indices:

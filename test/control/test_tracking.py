@@ -291,7 +291,8 @@ def _drive_mirrored(tracker: CurveTracker, k_of_period, periods: int,
 
 
 def test_tracker_turns_to_the_mirror_twin_when_k_drifts_through_zero():
-    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1)
+    # entered from the inner loop; the entry's own trial of the twin is another test's
+    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, entry_trial_inner=False)
     drift = lambda t: -0.15 + 0.3 * min(t / 2500, 1.0)          # noqa: E731
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
     o, _, branch = _drive_mirrored(tracker, drift, 3000)
@@ -314,7 +315,8 @@ def test_where_the_estimate_says_nothing_a_fall_of_o_makes_the_tracker_try_the_t
     """A laser whose O does not change along the curve (on other cavities the best point
     often sits at the curve's end whatever K is): the estimate never leaves its start, K
     drifts through 0, O falls on the curve, and the tracker tries the twin and keeps it."""
-    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1)
+    # entered from the inner loop; the entry's own trial of the twin is another test's
+    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, entry_trial_inner=False)
     drift = lambda t: -0.15 + 0.35 * min(t / 2500, 1.0)          # noqa: E731
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
     o, _, branch = _drive_mirrored(tracker, drift, 3000, curvature=0.0)
@@ -374,13 +376,27 @@ def test_after_an_acquisition_lock_the_tracker_tries_the_other_branch_once():
     assert doubtful.branch == -1
 
 
+def test_with_entry_trial_inner_an_entry_from_the_inner_loop_tries_the_other_branch_too():
+    """The laser locked under the inner loop and tracking began at ``start`` on the curve,
+    the weaker branch at K = 0.15: only with ``entry_trial_inner`` is the twin tried."""
+    cfg = TrackingConfig(settle=5, start=-0.1, trial_drop=0.0, mirror_margin=0.5,
+                         entry_patience=1)
+    for inner, branch in ((True, -1), (False, 1)):
+        tracker = CurveTracker(GRID, ANGLES, threshold=0.1,
+                               config=replace(cfg, entry_trial_inner=inner))
+        o, _, _ = _drive_mirrored(tracker, lambda t: 0.15, 300, curvature=0.0)
+        assert tracker.active and tracker.branch == branch, inner
+        assert tracker.turner.made + tracker.turner.rejected == int(inner)
+        assert (np.mean(o[-50:]) > 0.195) == inner
+
+
 def test_a_turn_that_loses_the_pulse_is_turned_back_and_tried_the_other_way():
     """A laser whose sign conventions are the other way round from the simulator's: K
     runs from -0.1 to 0.25 in 200 periods, the estimate passes the margin, the quarter turn in the
     simulator's direction starts losing O, the tracker turns back before O falls far,
     and after the cooldown turns the other way, onto the twin."""
     cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, turn_cooldown=30,
-                         mirror_margin=0.2)
+                         mirror_margin=0.2, entry_trial_inner=False)
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
     tracker.turner.direction = 1.0                                  # the wrong way here
     ramp = lambda t: -0.1 + 0.35 * min(max(t - 300, 0) / 200, 1.0)  # noqa: E731

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.evaluation.lock_benchmark import (LockSpec, LockTask, lock_metrics, run_starts,
                                                  start_conditions)
 from dlmpc_ros.learning.tables import load_baselines
@@ -43,3 +44,17 @@ def test_a_tiny_benchmark_runs_cold_starts_from_noise_and_repeats_itself():
     for s in first:
         assert s['locked'] == (s['round_trips'] is not None)
         assert s['round_trips'] is None or 0 <= s['round_trips'] <= 400 - 50
+
+
+def test_a_task_runs_the_dl_mpc_with_the_settings_it_is_given():
+    """The variant runner's lock mode hands its settings through the task: without the
+    acquisition scan, starts that the shipped DL-MPC locks by scanning stay unlocked."""
+    tables = load_baselines(models_dir() / 'oracle.npz')
+    spec = LockSpec('dlmpc', starts=2, budget=400, hold_periods=5)
+
+    def locked(config: DLMPCConfig | None) -> list[bool]:
+        task = LockTask(spec, (0, 3), str(models_dir()), tables['K'], tables['O_star'], config)
+        return [s['locked'] for s in run_starts(task)]
+
+    assert locked(None) == [True, True]
+    assert locked(DLMPCConfig(acquisition=None)) == [False, False]
