@@ -52,6 +52,12 @@ class AcquisitionConfig:
     lock benchmark 892 of 900 cold starts locked against 890, the worst plant's median
     time to lock 17.6 periods against 23.9; their drift runs 0.9575 against 0.9547
     (``bench/results/acquisition_pace.md``)."""
+    relock_patience: int = 10
+    """The same once the laser has been locked in this run: a pulse that fades under the
+    lock level while the tracker settles on the weaker branch may still be turned onto
+    the better one by its entry trial. Development plants' lock benchmark: 896 of 900
+    against 892 with 3 (family-6 100 against 96), worst median 19.1 periods
+    (``bench/results/acquisition_pace.md``)."""
     dwell_periods: int = 3
     """Periods the scan waits at each point once the servos are there."""
     scan_points: int = 9
@@ -99,10 +105,12 @@ class AcquisitionConfig:
     def __post_init__(self) -> None:
         if not 0 < self.lock_fraction < 1:
             raise ValueError(f'lock_fraction must be in (0, 1), got {self.lock_fraction}')
-        if min(self.patience, self.dwell_periods, self.scan_points, self.travel_periods,
-               self.level_window, self.confirm_periods, self.compare_periods) < 1:
-            raise ValueError('patience, dwell_periods, scan_points, travel_periods, '
-                             'level_window, confirm_periods and compare_periods must be >= 1')
+        if min(self.patience, self.relock_patience, self.dwell_periods, self.scan_points,
+               self.travel_periods, self.level_window, self.confirm_periods,
+               self.compare_periods) < 1:
+            raise ValueError('patience, relock_patience, dwell_periods, scan_points, '
+                             'travel_periods, level_window, confirm_periods and '
+                             'compare_periods must be >= 1')
         checks.positive(self, 'arrive_tolerance')
         if not (np.isfinite(self.turn_room) and self.turn_room >= 0):
             raise ValueError(f'turn_room must be >= 0 rad, got {self.turn_room}')
@@ -183,6 +191,7 @@ class LockSupervisor:
         self.source = source
         self.limits = limits
         self.unlocked = 0
+        self.was_locked = False  # whether the laser has been locked in this run
         self.level = 0.0  # the laser's recent best O (a decaying maximum)
         self._latest: deque[float] = deque(maxlen=self.config.level_window)  # finite O
         self._locked_run = 0  # consecutive locked periods
@@ -220,13 +229,15 @@ class LockSupervisor:
                 return compared
             locked = self.locked(objective)
         if locked:
+            self.was_locked = True
             self.source.note_locked(surrogate)
             self.locked_at = self._target
             self.unlocked = 0
             self._order, self._target, self._phase = [], None, ''
             return None
         self.unlocked += 1
-        if self.unlocked <= self.config.patience:
+        cfg = self.config
+        if self.unlocked <= (cfg.relock_patience if self.was_locked else cfg.patience):
             return None
         return self._scan(np.asarray(current, float))
 

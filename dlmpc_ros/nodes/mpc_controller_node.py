@@ -42,7 +42,7 @@ OPTIONAL_DEFAULTS: dict[str, float] = {'trust_radius': 0.0, 'objective_guard': 0
 _ACQ = AcquisitionConfig()
 ACQUISITION_DEFAULTS: dict[str, object] = {
     'acquire': True, 'lock_fraction': _ACQ.lock_fraction, 'acquire_patience': _ACQ.patience,
-    'acquire_dwell': _ACQ.dwell_periods,
+    'acquire_relock_patience': _ACQ.relock_patience, 'acquire_dwell': _ACQ.dwell_periods,
 }
 _TRK = TrackingConfig()
 TRACKING_DEFAULTS: dict[str, object] = {
@@ -75,6 +75,7 @@ DESCRIPTIONS = {
                'its pulse',
     'lock_fraction': 'locked when O >= this x the mean O of the map training targets',
     'acquire_patience': 'unlocked control periods before the scan starts',
+    'acquire_relock_patience': 'the same once the laser has been locked in this run',
     'acquire_dwell': 'control periods the scan waits at each point',
     'track': 'once locked, move onto the tracking curve (track_curve.npz) and follow K along '
              'it by extremum seeking on the measured O',
@@ -100,7 +101,8 @@ RANGES: dict[str, tuple[float, float]] = {
     'error_threshold': (1e-12, 1e6), 'accurate_error': (1e-12, 1e6),
     'trust_radius': (0.0, 1e3), 'objective_guard': (0.0, 1.0),
     'guard_cooldown': (1, 1_000_000), 'lock_fraction': (1e-6, 0.999999),
-    'acquire_patience': (1, 1_000_000), 'acquire_dwell': (1, 1_000_000),
+    'acquire_patience': (1, 1_000_000), 'acquire_relock_patience': (1, 1_000_000),
+    'acquire_dwell': (1, 1_000_000),
     'track_dither': (1e-9, 1.0), 'track_step': (_TRK.min_step, _TRK.max_step),
     'track_guard': (1e-6, 1.0), 'track_noise_deadband': (0.0, 10.0),
     'plan_radius': (1e-3, 1.0), 'plan_spread_penalty': (0.0, 100.0),
@@ -118,6 +120,7 @@ class MPCControllerNode(ControllerNodeBase):
         try:
             acquisition = AcquisitionConfig(
                 lock_fraction=v['lock_fraction'], patience=v['acquire_patience'],
+                relock_patience=v['acquire_relock_patience'],
                 dwell_periods=v['acquire_dwell']) if v['acquire'] else None
             tracking = TrackingConfig(dither=v['track_dither'], step=v['track_step'],
                                       guard=v['track_guard'],

@@ -23,8 +23,8 @@ def test_scan_points_are_prior_quantiles():
 
 
 def test_supervisor_waits_then_scans_nearest_first_and_lets_go_on_lock():
-    sup = LockSupervisor(0.1, MapScan(_map, 5), AcquisitionConfig(patience=2, dwell_periods=2,
-                                                                  confirm_periods=2))
+    sup = LockSupervisor(0.1, MapScan(_map, 5), AcquisitionConfig(
+        patience=2, relock_patience=2, dwell_periods=2, confirm_periods=2))
     here = np.zeros(4)
     assert sup.step(0.2, here, 0.6) is None        # locked: remembers the surrogate
     assert sup.step(0.01, here, 0.0) is None       # unlocked, patience 1
@@ -40,6 +40,20 @@ def test_supervisor_waits_then_scans_nearest_first_and_lets_go_on_lock():
     assert sup.unlocked == 0 and sup.locked_at is not None
     np.testing.assert_allclose(sup.locked_at.angles, second)
     assert sup.step(0.15, second, 0.0) is None and sup.locked_at is None  # only once
+
+
+def test_once_the_laser_has_been_locked_the_scan_waits_the_relock_patience():
+    config = AcquisitionConfig(patience=1, relock_patience=4)
+    sup = LockSupervisor(0.1, MapScan(_map, 5), config)
+    here = np.zeros(4)
+    assert sup.step(0.01, here, 0.0) is None and not sup.was_locked
+    assert sup.step(0.01, here, 0.0) is not None   # cold: scans after 1 period
+    sup = LockSupervisor(0.1, MapScan(_map, 5), config)
+    assert sup.step(0.2, here, 0.0) is None and sup.was_locked
+    waited = [sup.step(0.01, here, 0.0) is None for _ in range(5)]
+    assert waited == [True] * 4 + [False]          # after a lock: 4 periods
+    with pytest.raises(ValueError, match='relock_patience'):
+        AcquisitionConfig(relock_patience=0)
 
 
 def test_a_transient_over_the_level_neither_stops_the_scan_nor_sets_the_level():
