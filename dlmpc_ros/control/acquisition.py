@@ -7,10 +7,10 @@ O = E/M against a lock threshold (a fraction of the mean O of the map's own trai
 targets: no K; and, once the laser has shown what it can do, ``relock_fraction`` of the
 best O it measured recently, a maximum that decays by ``level_decay`` per period: a laser
 that is not the nominal cavity has its own scale of O, and a state far under its own
-best has lost its pulse for another) and, after ``patience`` unlocked periods, scans a
-list of candidate angle
-sets from a :class:`ScanSource`, dwelling ``dwell_periods`` at each once the servos are
-there, until O has stayed at the threshold for ``confirm_periods``. Where that point has a
+best has lost its pulse for another) and, after ``patience`` unlocked periods
+(``relock_patience`` once it has been locked in the run), scans a list of candidate
+angle sets from a :class:`ScanSource`, dwelling ``dwell_periods`` at each once the servos
+are there, until O has stayed at the threshold for ``confirm_periods``. Where that point has a
 mirror twin still to come in the pass, it holds the point and tries the twin
 ``compare_periods`` each and keeps the better (the first point that locks can be on the
 weaker branch). Then control goes back to the DL-MPC's modes, told which point locked
