@@ -36,10 +36,14 @@ import os
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dlmpc_ros.scaleout import TaskFailure, default_workers, run_tasks
+
+if TYPE_CHECKING:
+    from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = ('sinusoidal', 'chirp', 'random_walk', 'steps')
@@ -84,7 +88,8 @@ def plant_and_envelope(plant: str, models_dir: Path) -> tuple[dict, dict]:
             cached_plant_envelope(cavity, tables))
 
 
-def variant_config(overrides: dict, models_dir: str, max_step: float):
+def variant_config(overrides: dict, models_dir: str,
+                   max_step: float) -> tuple[DLMPCConfig, float, Path]:
     """A variant's ``(DLMPCConfig, measurement noise, models folder)``."""
     from dlmpc_ros.control.acquisition import AcquisitionConfig
     from dlmpc_ros.control.dlmpc_config import DLMPCConfig
@@ -158,7 +163,8 @@ def lock_table(blocks: list[dict]) -> tuple[str, dict]:
     lines = ['| variant | ' + ' | '.join(names) + ' | locked | worst median periods |',
              '|---' * (len(plants) + 3) + '|']
     for variant, per_plant in summary.items():
-        cells = [f"{m['locked']}/{m['starts']} ({m['median_control_periods'] or 0:.1f})"
+        cells = [f"{m['locked']}/{m['starts']} ("
+                 + (f"{m['median_control_periods']:.1f})" if m['locked'] else '-)')
                  for m in per_plant.values()]
         medians = [m['median_control_periods'] or np.inf for m in per_plant.values()]
         lines.append(f'| {variant} | ' + ' | '.join(cells) + ' | '
