@@ -48,10 +48,10 @@ class AcquisitionConfig:
     """Locked when O >= lock_fraction x the mean O of the map's training targets."""
     patience: int = 3
     """Unlocked periods before the scan starts (the loops may still be acquiring). 3
-    rather than 10, with ``dwell_periods`` 3 rather than 5: on the development plants'
-    lock benchmark 892 of 900 cold starts locked against 890, the worst plant's median
-    time to lock 17.6 periods against 23.9; their drift runs 0.9575 against 0.9547
-    (``bench/results/acquisition_pace.md``)."""
+    rather than 10, with ``dwell_periods`` 3 rather than 5 (and, then, 3 after a lock
+    too): on the development plants' lock benchmark 892 of 900 cold starts locked
+    against 890, the worst plant's median time to lock 17.6 periods against 23.9; their
+    drift runs 0.9575 against 0.9547 (``bench/results/acquisition_pace.md``)."""
     relock_patience: int = 10
     """The same once the laser has been locked in this run: a pulse that fades under the
     lock level while the tracker settles on the weaker branch may still be turned onto
