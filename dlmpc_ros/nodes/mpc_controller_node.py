@@ -75,7 +75,8 @@ DESCRIPTIONS = {
                'its pulse',
     'lock_fraction': 'locked when O >= this x the mean O of the map training targets',
     'acquire_patience': 'unlocked control periods before the scan starts',
-    'acquire_relock_patience': 'the same once the laser has been locked in this run',
+    'acquire_relock_patience': 'unlocked control periods before the scan starts once '
+                               'the laser has been locked in this run',
     'acquire_dwell': 'control periods the scan waits at each point',
     'track': 'once locked, move onto the tracking curve (track_curve.npz) and follow K along '
              'it by extremum seeking on the measured O',
