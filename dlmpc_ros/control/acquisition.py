@@ -79,13 +79,18 @@ class AcquisitionConfig:
     while the servos travel between points can be a transient that dies at once). 2
     locked 4 more of 100 cold starts on one development plant and lost 0.005 on the
     family's random walks (``bench/results/acquisition_confirm.md``): 1 by default."""
-    compare_twins: bool = True
+    compare_twins: bool = False
     """Where the scan locks on a point whose mirror twin (the other branch at the same
     curve point) it has not tried in this pass, hold there ``compare_periods`` periods,
     then try the twin as long, and keep the one with the higher median O over the later
-    half of its periods. Without it the scan stops at the first point that passes the
-    lock level, which can be the weaker branch: on some plants a weak pulse at about 0.4
-    O* holds all along the curve at K > 0 (``bench/results/compare_twins.md``)."""
+    half of its periods. Off: the scan stops at the first point that passes the lock
+    level, which can be the weaker branch (on some plants a weak pulse at about 0.4 O*
+    holds all along the curve at K > 0, ``bench/results/compare_twins.md``), and the
+    tracker's entry trial turns it onto the twin, keeping the pulse. The jump to the twin
+    loses the pulse, and at |K| = 0.28 the twin's point does not start one from noise:
+    on the development plants' lock benchmark, with the tracker's turn settings of
+    ``bench/results/entry_turn.md``, 899 of 900 cold starts locked, the median 8-20
+    periods (896 and 14-19 with the comparison and the turn settings before)."""
     compare_periods: int = 2
     """Periods the scan holds each of the two twins it compares (once the servos are
     there). 2 rather than 4: the same starts locked on the development plants, 2 periods

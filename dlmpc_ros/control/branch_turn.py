@@ -23,7 +23,9 @@ Two checks make it safe on a laser that is not the simulator:
   pulse and the turn goes the way that brings the servos back toward the middle of their
   range);
 - the turn is a trial: ``verify`` periods after it, O is compared with O before it, and
-  unless the new branch gives ``branch_gain`` more, the laser is turned back.
+  unless the new branch gives ``branch_gain`` more, the laser is turned back (at once,
+  with ``landing_guard``, if O falls under ``turn_guard`` x its O before the turn while
+  it is on trial: a pulse that held on the way can still die where it lands).
 """
 
 from __future__ import annotations
@@ -63,9 +65,11 @@ class BranchTurn:
         self._from = np.zeros(4)             # the angles it started from
         self._before = 0.0                   # O just before it
         self._way = -1.0
-        self._phase = ''                     # '', 'go', 'verify', 'back', 'lost'
+        self._phase = ''                     # '', 'go', 'verify', 'back', 'lost', 'landed'
         self.landing = 0.0                   # curve point the turn under way lands at
         self._checked: list[float] = []      # O measured while verifying
+        #: the last turn ended with the pulse going where it landed (until one is kept)
+        self.lost_landing = False
 
     @property
     def busy(self) -> bool:
@@ -81,9 +85,10 @@ class BranchTurn:
         self._phase, self._path = '', []
 
     def begin(self, current: np.ndarray, u: float, objective: float) -> bool:
-        """Start a turn from the angles ``current`` (4,) [rad] at curve point ``u``, with O
-        measured now; False (and a cooldown) if no way round stays inside the limits. The
-        turn lands at the curve point :attr:`landing` (``-|u|``).
+        """Start a turn from the angles ``current`` (4,) [rad] at curve point ``u``, with
+        ``objective`` the O before it (what its guard and verification judge by); False
+        (and a cooldown) if no way round stays inside the limits. The turn lands at the
+        curve point :attr:`landing` (``-|u|``).
 
         Every turn goes in the same direction, so turns one after the other wind the
         servos toward an end of their range. A turn near K = 0 (``|u| <= free_turn``)
@@ -120,7 +125,11 @@ class BranchTurn:
         holds the new branch's point) and what the period ended with ('' or one of
         :data:`ARRIVED`, :data:`KEPT`, :data:`RETURNED`, :data:`ABANDONED`)."""
         cfg = self.config
-        if self._phase == 'verify':
+        if (self._phase == 'verify' and cfg.landing_guard
+                and not objective >= cfg.turn_guard * self._before):  # going where it landed
+            self._phase, self._path = 'landed', self._issued[-2::-1] + [self._from]
+            self.lost_landing = True
+        elif self._phase == 'verify':
             if np.isfinite(objective):
                 self._checked.append(float(objective))
             if len(self._checked) < cfg.verify:
@@ -129,6 +138,7 @@ class BranchTurn:
             if np.median(settled) >= (1 + cfg.branch_gain) * self._before:
                 self._phase, self.wait = '', cfg.turn_cooldown
                 self.made += 1
+                self.lost_landing = False
                 return None, KEPT
             self._phase, self._path = 'back', self._issued[-2::-1] + [self._from]
         elif (self._phase == 'go' and self._issued
@@ -144,7 +154,7 @@ class BranchTurn:
         event = RETURNED if self._phase == 'back' else ABANDONED
         if event == ABANDONED:
             self.abandoned += 1
-            if self._way == self.direction:
+            if self._phase == 'lost' and self._way == self.direction:
                 self.direction = -self._way  # the other way round next time
         else:
             self.rejected += 1

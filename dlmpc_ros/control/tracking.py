@@ -149,9 +149,24 @@ class TrackingConfig:
     free_turn: float = 0.06
     """Within this distance of K = 0 (K units) both ways round keep the pulse; the tracker
     then turns the way that unwinds the servos toward the middle of their range."""
-    turn_guard: float = 0.6
+    turn_guard: float = 0.45
     """During a change of branch, O below this fraction of the O before it means the turn
-    is losing the pulse: the tracker turns back (and turns the other way next time)."""
+    is losing the pulse: the tracker turns back (and turns the other way next time).
+    0.45 rather than 0.6: a weak pulse just formed from noise dips under 0.6 of its O on
+    its own, and entry trials that would have reached the twin's 0.94 O* were given up;
+    0.45 for the entry trial's turn alone did no better (``bench/results/entry_turn.md``)."""
+    turn_reference: int = 3
+    """The O before a turn, which its guard and its verification judge by, is the median
+    of this many latest periods (1: the period's own O). A pulse just formed from noise
+    swings by a factor of two between periods, and a turn begun on a crest was given up
+    at the next trough (``bench/results/entry_turn.md``)."""
+    landing_guard: bool = True
+    """While the new branch is on trial after a turn, O under ``turn_guard`` x the O
+    before the turn takes the laser back at once (the pulse is going where the turn
+    landed) instead of after ``verify`` periods; the way round is kept (it kept the pulse
+    on the way), and the next entry makes no entry trial until a turn is kept (a pulse
+    at 0.8 O* was otherwise lost to the same trial at each entry;
+    ``bench/results/entry_turn.md``)."""
     turn_cooldown: int = 100
     """Periods after a turn (made or given up) before the next may start."""
     verify: int = 6
@@ -172,15 +187,20 @@ class TrackingConfig:
     1 % noise on E and M costs 0.004 with both, 0.017 with neither, at 0.002 without
     noise (``bench/results/noise_levels.md``)."""
     entry_trial: bool = True
-    """Once tracking that began where the acquisition scan locked has settled, try the
-    other branch once (the scan stops at the first point that passes the lock level,
-    which may be the weaker branch; the turn is kept only if it gains) ..."""
+    """``entry_trial_after`` periods after tracking began where the acquisition scan
+    locked, try the other branch once (the scan stops at the first point that passes the
+    lock level, which may be the weaker branch; the turn is kept only if it gains) ..."""
     entry_trial_inner: bool = True
     """Also try the other branch once after an entry from the inner loop (the laser
     locked under the map's angles, and tracking began at ``start`` on the curve, which
     may be the weaker branch). Development plants: 2 more cold starts of 200 locked with
     a scan ``patience`` of 5, the same with 3 (scans then find the lock first); drift runs
     0.9575 against 0.9570 (``bench/results/acquisition_pace.md``)."""
+    entry_trial_after: int = 6
+    """Periods after the entry before the entry trial (``settle``, 20, before). A pulse
+    the scan locked on the weaker branch at |K| = 0.28 fades to 0.3-0.45 O* within some
+    7 periods, and the turn that keeps it carries it to the twin's 0.94 O*; the twin's
+    own point does not start a pulse from noise there (``bench/results/entry_turn.md``)."""
     entry_trial_below: float = 0.8
     """... if O is then under this fraction of the curve's own steady O at the estimate
     (the O the curve gave on the simulator; without it, always; 0: never)."""
@@ -220,6 +240,8 @@ class TrackingConfig:
             raise ValueError(f'survey_scale_window must be >= 1, got {self.survey_scale_window}')
         if self.survey_scale not in ('curve', 'own'):
             raise ValueError(f"survey_scale must be 'curve' or 'own', got {self.survey_scale!r}")
+        if self.entry_trial_after < 0 or self.turn_reference < 1:
+            raise ValueError('need entry_trial_after >= 0 and turn_reference >= 1')
         if not self.entry_trial_below >= 0:
             raise ValueError(f'entry_trial_below must be >= 0, got {self.entry_trial_below}')
         if not (self.mirror_margin >= 0 and 0 < self.turn_step <= QUARTER_TURN
@@ -267,6 +289,8 @@ class CurveTracker:
         self._blocks: deque[tuple[float, float]] = deque(maxlen=3)  # (sign, O)
         #: |change of log O| between consecutive periods of a block (same angles): noise
         self._jitter: deque[float] = deque(maxlen=64)
+        #: O of the latest ``turn_reference`` periods (the O before a turn is their median)
+        self._latest: deque[float] = deque(maxlen=self.config.turn_reference)
         self.rotation = CurveRotation(self.grid[0], self.grid[-1],
                                       self.config.rotation_knots, self.config.rotation_limit)
         #: ``(u, theta) -> further turn [rad]`` asked every ``plan_every`` blocks (None:
@@ -330,6 +354,7 @@ class CurveTracker:
         """This period's measured O and the angles (4,) [rad] it ran with -> the curve's
         angles for the next period, or None. Without ``current`` the branch never changes."""
         locked = bool(np.isfinite(objective) and objective >= self.threshold)
+        self._latest.append(float(objective) if np.isfinite(objective) else 0.0)
         self.planned = 0.0  # the planner's turn this period [rad]
         if not self.active:
             return self._maybe_enter(objective, locked)
@@ -358,12 +383,14 @@ class CurveTracker:
                 self._cooldown = self.config.cooldown  # a successful entry resets it
             if self._should_survey(float(objective)):
                 return self._start_survey()
-        if self._entry_trial and self._age > self.config.settle and current is not None:
+        if self._entry_trial and self._age > self.config.entry_trial_after \
+                and current is not None:
             self._entry_trial = False
             weak = (self.expected is None or objective < self.config.entry_trial_below
                     * self.expected_objective(self.estimate))
-            if weak and self.turner.wait == 0 and self.turner.begin(
-                    np.asarray(current, float), self.branch * self.estimate, float(objective)):
+            if weak and self.turner.wait == 0 and not self.turner.lost_landing \
+                    and self.turner.begin(np.asarray(current, float),
+                                          self.branch * self.estimate, self._reference()):
                 return self._turning(float(objective))
         self._in_block += 1
         if self._in_block > 1 and self._block_values and objective > 0 \
@@ -374,9 +401,13 @@ class CurveTracker:
             self._end_block(float(np.mean(self._block_values)))
             if (current is not None and self._wants_other_branch()
                     and self.turner.begin(np.asarray(current, float),
-                                          self.branch * self.estimate, float(objective))):
+                                          self.branch * self.estimate, self._reference())):
                 return self._turning(float(objective))
         return self._command()
+
+    def _reference(self) -> float:
+        """The O a turn begun now is judged against: the median of the latest periods."""
+        return float(np.median(self._latest))
 
     def _wants_other_branch(self) -> bool:
         """Whether to try the other branch: the estimate has gone past the margin onto its

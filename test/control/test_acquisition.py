@@ -165,7 +165,8 @@ def _scan_locked_at_curve_point(twin_objective: float) -> tuple[LockSupervisor, 
     """Scan, lock at the curve point (O 0.2), hold it, try its twin (O ``twin_objective``);
     the commands of each period."""
     sup = LockSupervisor(0.1, _Pairs(_CURVE, _TWIN, _NEXT),
-                         AcquisitionConfig(patience=1, dwell_periods=2, compare_periods=2))
+                         AcquisitionConfig(patience=1, dwell_periods=2, compare_twins=True,
+                                           compare_periods=2))
     here = np.full(4, -1.0)
     sup.step(0.01, here, 0.0)
     commands = [sup.step(0.01, here, 0.0)]                    # scanning: the curve point
@@ -194,8 +195,8 @@ def test_a_weaker_twin_sends_the_scan_back_to_the_point_that_locked():
 
 
 def test_without_comparison_the_scan_lets_go_at_the_first_point_that_locks():
-    sup = LockSupervisor(0.1, _Pairs(_CURVE, _TWIN),
-                         AcquisitionConfig(patience=1, compare_twins=False))
+    """The default: the tracker's entry trial turns the laser onto the twin instead."""
+    sup = LockSupervisor(0.1, _Pairs(_CURVE, _TWIN), AcquisitionConfig(patience=1))
     sup.step(0.01, np.full(4, -1.0), 0.0)
     sup.step(0.01, np.full(4, -1.0), 0.0)
     assert sup.step(0.2, _CURVE.angles, 0.0) is None and sup.locked_at is _CURVE

@@ -331,10 +331,12 @@ def test_noise_alone_makes_the_tracker_try_the_twin_less_where_the_trial_average
     """K held on the curve's side, 2 % noise on O: the best of many single noisy blocks
     sits some standard deviations over the laser's O, so single blocks fall
     ``trial_drop`` under it by chance and the tracker tries the twin (and turns back);
-    the mean of two blocks against the best such mean does so far less often."""
+    the mean of two blocks against the best such mean does so far less often. (The O
+    a turn is judged by and the guard at its landing are the single period's and off:
+    they end turns in other ways, and this is about what starts them.)"""
     def trials(blocks: int) -> int:
         cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.15, trial_blocks=blocks,
-                             survey_ratio=1e-6)
+                             survey_ratio=1e-6, turn_reference=1, landing_guard=False)
         tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
         rng, o, current = np.random.default_rng(5), 0.2, None
         for _ in range(6000):
@@ -412,6 +414,70 @@ def test_a_turn_that_loses_the_pulse_is_turned_back_and_tried_the_other_way():
     under = np.flatnonzero(o[out - steps:out + 1] < cfg.turn_guard * before)
     assert under.size == 1 and under[0] == steps   # the first O under the guard turned it
     assert np.mean(o[-100:]) > 0.19                          # on the twin at K = 0.25
+
+
+def _scripted_entry(config: TrackingConfig, objectives: list[float],
+                    lost_landing: bool = False) -> CurveTracker:
+    """A tracker entered where a scan locked (curve point -0.1, branch 1), fed the O
+    values ``objectives`` one per period with the angles it asked for."""
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=config)
+    tracker.turner.lost_landing = lost_landing
+    tracker.enter_at(-0.1, 1, objectives[0])
+    current = tracker.curve(tracker.estimate)
+    for o in objectives:
+        current = tracker.limits.apply(current, tracker.step(o, current))
+    return tracker
+
+
+def test_the_entry_trial_comes_entry_trial_after_periods_after_the_entry():
+    cfg = TrackingConfig(entry_trial_after=4, trial_drop=0.0, mirror_margin=0.5)
+    early = _scripted_entry(cfg, [0.15] * 4)
+    assert not early.turner.busy
+    due = _scripted_entry(cfg, [0.15] * 5)
+    assert due.turner.busy
+    # not after a turn that lost the pulse where it landed (until a turn is kept)
+    assert not _scripted_entry(cfg, [0.15] * 5, lost_landing=True).turner.busy
+    with pytest.raises(ValueError, match='entry_trial_after'):
+        TrackingConfig(entry_trial_after=-1)
+
+
+def test_a_turn_begun_on_a_crest_of_o_is_judged_by_the_median_of_the_latest_periods():
+    """A pulse just formed from noise swings from period to period: the entry trial
+    begins on a crest (0.3 among 0.15) and the next period is a trough (0.12). Judged
+    against the crest (turn_reference 1) the turn is given up; against the median of the
+    latest three periods (0.15) it goes on; so it does against the crest with a turn
+    guard of 0.35 (0.12 > 0.35 x 0.3)."""
+    script = [0.15, 0.15, 0.3, 0.12, 0.15]
+    for reference, guard, abandoned in ((3, 0.45, 0), (1, 0.45, 1), (1, 0.35, 0)):
+        cfg = TrackingConfig(entry_trial_after=2, turn_reference=reference,
+                             turn_guard=guard, trial_drop=0.0, mirror_margin=0.5)
+        tracker = _scripted_entry(cfg, script + [0.15] * 10)
+        assert tracker.turner.abandoned == abandoned, (reference, guard)
+    with pytest.raises(ValueError, match='turn_reference'):
+        TrackingConfig(turn_reference=0)
+
+
+def test_a_turn_whose_pulse_goes_where_it_landed_is_taken_back_at_once():
+    """The turn keeps O on the way, but at its landing point O falls under the turn
+    guard: with ``landing_guard`` the laser is turned back in the next period (the way
+    round is kept, and the next entry makes no trial), without it only after the
+    ``verify`` periods."""
+    steps = int(np.ceil(QUARTER_TURN / TrackingConfig().turn_step - 1e-9))
+    for guard in (True, False):
+        cfg = TrackingConfig(landing_guard=guard, verify=6)
+        turner = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg).turner
+        assert turner.begin(ANGLES[20], GRID[20], 0.2)
+        events = [turner.step(0.2)[1] for _ in range(steps)]
+        assert events[-1] == 'arrived'
+        command, event = turner.step(0.05)          # the pulse is going at the landing
+        if guard:
+            assert command is not None and turner.lost_landing
+            back = [turner.step(0.05)[1] for _ in range(steps - 1)]
+            assert back[-1] == 'abandoned' and turner.abandoned == 1
+            assert turner.direction == -1.0          # the way round that kept the pulse
+        else:
+            assert command is None and event == '' and not turner.lost_landing
+            assert [turner.step(0.05)[0] for _ in range(cfg.verify - 1)][-1] is not None
 
 
 def test_a_turn_stays_inside_the_servo_limits():
