@@ -153,8 +153,9 @@ class TrackingConfig:
     """During a change of branch, O below this fraction of the O before it means the turn
     is losing the pulse: the tracker turns back (and turns the other way next time).
     0.45 rather than 0.6: a weak pulse just formed from noise dips under 0.6 of its O on
-    its own, and entry trials that would have reached the twin's 0.94 O* were given up;
-    0.45 for the entry trial's turn alone did no better (``bench/results/entry_turn.md``)."""
+    its own, and entry trials that would have reached the twin's 0.94 O* were given up
+    (0.45 for the entry trial's turn alone did no better on the drift runs;
+    ``bench/results/entry_turn.md``)."""
     turn_reference: int = 3
     """The O before a turn, which its guard and its verification judge by, is the median
     of this many latest periods (1: the period's own O). A pulse just formed from noise
