@@ -10,10 +10,12 @@ that is not the nominal cavity has its own scale of O, and a state far under its
 best has lost its pulse for another) and, after ``patience`` unlocked periods
 (``relock_patience`` once it has been locked in the run), scans a list of candidate
 angle sets from a :class:`ScanSource`, dwelling ``dwell_periods`` at each once the servos
-are there, until O has stayed at the threshold for ``confirm_periods``. Where that point has a
-mirror twin still to come in the pass, it holds the point and tries the twin
-``compare_periods`` each and keeps the better (the first point that locks can be on the
-weaker branch). Then control goes back to the DL-MPC's modes, told which point locked
+are there, until O has stayed at the threshold for ``confirm_periods``. With
+``compare_twins`` (off by default: the curve tracker's entry trial turns the laser onto
+the other branch instead, keeping the pulse), where that point has a mirror twin still
+to come in the pass, it holds the point and tries the twin ``compare_periods`` each and
+keeps the better (the first point that locks can be on the weaker branch). Then control
+goes back to the DL-MPC's modes, told which point locked
 (:attr:`LockSupervisor.locked_at`). The scan's points are reached inside the servo range
 less ``turn_room``, so the tracker's quarter turns between branches fit either way round.
 

@@ -120,6 +120,12 @@ class BranchTurn:
         self.wait = cfg.turn_cooldown
         return False
 
+    def _retrace(self, phase: str) -> None:
+        """Go back the way the turn came (its commands so far in reverse, then the angles
+        it started from), as ``phase``: 'back' (no better), 'lost' or 'landed' (the
+        pulse going on the way or where it landed)."""
+        self._phase, self._path = phase, self._issued[-2::-1] + [self._from]
+
     def step(self, objective: float) -> tuple[np.ndarray | None, str]:
         """This period's O -> the command of the turn (None while verifying: the tracker
         holds the new branch's point) and what the period ended with ('' or one of
@@ -127,7 +133,7 @@ class BranchTurn:
         cfg = self.config
         if (self._phase == 'verify' and cfg.landing_guard
                 and not objective >= cfg.turn_guard * self._before):  # going where it landed
-            self._phase, self._path = 'landed', self._issued[-2::-1] + [self._from]
+            self._retrace('landed')
             self.lost_landing = True
         elif self._phase == 'verify':
             if np.isfinite(objective):
@@ -140,10 +146,10 @@ class BranchTurn:
                 self.made += 1
                 self.lost_landing = False
                 return None, KEPT
-            self._phase, self._path = 'back', self._issued[-2::-1] + [self._from]
+            self._retrace('back')
         elif (self._phase == 'go' and self._issued
               and not objective >= cfg.turn_guard * self._before):  # the pulse is going
-            self._phase, self._path = 'lost', self._issued[-2::-1] + [self._from]
+            self._retrace('lost')
         command = self._path.pop(0)
         self._issued.append(command)
         if self._path:
