@@ -31,8 +31,9 @@ not say which side of 0 K is on, and the measured O does.
 The curve was made on the nominal cavity; on the laser in front of it the curve is
 turned by a learned rotation theta(u) (all four angles together, a different turn at
 each point of the curve; :mod:`dlmpc_ros.control.rotation`). Every ``plan_every`` dither
-blocks the tracker asks its ``plan_rotation(u, theta)`` (the DL-MPC's rotation planner,
-:mod:`dlmpc_ros.control.rotation_planner`) for a further turn at the current point,
+blocks the tracker asks its ``plan_rotation(u, theta, noise)`` (the DL-MPC's rotation
+planner, :mod:`dlmpc_ros.control.rotation_planner`; ``noise`` the measurement noise it
+read off the run, :meth:`CurveTracker.noise`) for a further turn at the current point,
 applies it and starts its dither afresh. What is learned at a point stays there for the
 next time K comes by.
 """
@@ -294,9 +295,9 @@ class CurveTracker:
         self._latest: deque[float] = deque(maxlen=self.config.turn_reference)
         self.rotation = CurveRotation(self.grid[0], self.grid[-1],
                                       self.config.rotation_knots, self.config.rotation_limit)
-        #: ``(u, theta) -> further turn [rad]`` asked every ``plan_every`` blocks (None:
-        #: the curve is never turned)
-        self.plan_rotation: Callable[[float, float], float] | None = None
+        #: ``(u, theta, noise) -> further turn [rad]`` asked every ``plan_every`` blocks
+        #: (None: the curve is never turned)
+        self.plan_rotation: Callable[[float, float, float], float] | None = None
         self.planned = 0.0
         self._survey_wait = 0
         #: measured O over the curve's O, recent tracking periods (the laser's own scale)
@@ -554,10 +555,17 @@ class CurveTracker:
         cfg = self.config
         if cfg.noise_deadband <= 0 or len(self._jitter) < 8:
             return cfg.deadband
-        # median |difference of two periods| -> one period's standard deviation
-        sigma = 1.4826 * float(np.median(self._jitter)) / np.sqrt(2.0)
         return max(cfg.deadband,
-                   cfg.noise_deadband * sigma * np.sqrt(1.5 / cfg.block_mean))
+                   cfg.noise_deadband * self.noise() * np.sqrt(1.5 / cfg.block_mean))
+
+    def noise(self) -> float:
+        """The measurement noise read off the run: the standard deviation of one period's
+        log O, from the changes between consecutive periods of a dither block (same
+        angles); 0 until 8 such changes were seen."""
+        if len(self._jitter) < 8:
+            return 0.0
+        # median |difference of two periods| -> one period's standard deviation
+        return 1.4826 * float(np.median(self._jitter)) / np.sqrt(2.0)
 
     def _end_block(self, objective: float) -> None:
         """Close a dither half: compare it with its neighbours and move the estimate; every
@@ -586,7 +594,7 @@ class CurveTracker:
         if (self.plan_rotation is not None and self._age > cfg.settle
                 and self._block_count % cfg.plan_every == 0):
             u = self.branch * self.estimate
-            turn = self.plan_rotation(u, self.rotation(u))
+            turn = self.plan_rotation(u, self.rotation(u), self.noise())
             if turn:
                 self.rotation.move(u, turn)
                 self.planned = float(turn)

@@ -52,6 +52,7 @@ TRACKING_DEFAULTS: dict[str, object] = {
 _PLN = PlannerConfig()
 PLANNER_DEFAULTS: dict[str, object] = {
     'plan': True, 'plan_radius': _PLN.radius, 'plan_spread_penalty': _PLN.spread_penalty,
+    'plan_noise_gate': _PLN.noise_gate,
     'plan_online': _PLN.online, 'plan_explore': _PLN.explore,
 }
 DESCRIPTIONS = {
@@ -92,6 +93,8 @@ DESCRIPTIONS = {
             '(response.pt) says O gains (the model-predictive step on this laser)',
     'plan_radius': 'trust radius: largest turn of the curve per plan [rad]',
     'plan_spread_penalty': 'weight of the predictor ensemble\'s spread against its mean gain',
+    'plan_noise_gate': 'a turn must be predicted to gain this many standard deviations of '
+                       'the measured noise of its own gain (0: off)',
     'plan_online': 'correct the predictor online from the run\'s own turns',
     'plan_explore': 'calibration runs: random turns within the trust radius instead of the '
                     'planned ones (record a bag for `dlmpc-train adapt`)',
@@ -107,6 +110,7 @@ RANGES: dict[str, tuple[float, float]] = {
     'track_dither': (1e-9, 1.0), 'track_step': (_TRK.min_step, _TRK.max_step),
     'track_guard': (1e-6, 1.0), 'track_noise_deadband': (0.0, 10.0),
     'plan_radius': (1e-3, 1.0), 'plan_spread_penalty': (0.0, 100.0),
+    'plan_noise_gate': (0.0, 100.0),
 }
 
 
@@ -129,6 +133,7 @@ class MPCControllerNode(ControllerNodeBase):
                                       ) if v['track'] else None
             planner = PlannerConfig(
                 radius=v['plan_radius'], spread_penalty=v['plan_spread_penalty'],
+                noise_gate=v['plan_noise_gate'],
                 online=v['plan_online'], explore=v['plan_explore']) if v['plan'] else None
             config = DLMPCConfig(limits=self.limits, acquisition=acquisition, tracking=tracking,
                                  planner=planner,

@@ -83,6 +83,29 @@ def test_the_planner_turns_toward_the_best_rotation_within_its_trust_radius(toy_
     assert planner.plan(-0.1, _best_turn(1.0)) == 0.0
 
 
+def test_under_noise_the_planner_holds_where_the_gain_would_be_lost_in_the_noise(toy_model):
+    """A turn predicted to gain ``g`` of log O: the gated planner makes it while the noise
+    of its measured gain (one period's noise x sqrt(2 / 3), means of 3 periods before and
+    after) is under ``g``, and holds once it is over."""
+    deltas = np.linspace(-0.1, 0.1, 21)
+    gain = float(np.max(toy_model.predict(-0.1, 0.06, np.exp(1.0), np.exp(3.0), deltas)[0]))
+    assert gain > 0.01
+    at_gain = gain / np.sqrt(2 / 3)  # one period's noise that makes the gain's spread g
+
+    def first_turn(noise: float, gate: float) -> float:
+        planner = RotationPlanner(toy_model, PlannerConfig(spread_penalty=0.0, online=False,
+                                                           noise_gate=gate))
+        planner.observe(np.exp(1.0), np.exp(3.0))
+        return planner.plan(-0.1, 0.06, noise)
+
+    assert first_turn(0.0, 1.0) < -0.01              # no noise: turns toward the best
+    assert first_turn(0.8 * at_gain, 1.0) < -0.01
+    assert first_turn(1.2 * at_gain, 1.0) == 0.0     # the gain is under the noise: holds
+    assert first_turn(1.2 * at_gain, 0.0) < -0.01    # gate off: turns as without noise
+    with pytest.raises(ValueError, match='noise_gate'):
+        PlannerConfig(noise_gate=-1.0)
+
+
 def test_the_online_correction_learns_what_the_predictor_gets_wrong_on_this_laser():
     correction = OnlineCorrection(memory=10)
     assert correction(np.array([0.1]))[0] == 0.0

@@ -94,21 +94,25 @@ def test_the_noise_deadband_reads_the_noise_off_the_run_and_holds_the_estimate_a
         cfg = TrackingConfig(entry_patience=1, settle=0, mirror=False, start=-0.1,
                              noise_deadband=noise_deadband)
         tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg)
-        o, estimates = 0.2 - (0.1 + k) ** 2, []
+        tracker.plan_rotation = lambda u, theta, noise: planned.append(
+            noise - tracker.noise()) or 0.0
+        o, estimates, planned = 0.2 - (0.1 + k) ** 2, [], []
         for _ in range(2000):
             command = tracker.step(o)
             o = (0.2 - (command[0] / 2 - k) ** 2) * (1 + noise * rng.standard_normal())
             estimates.append(tracker.estimate)
+        assert planned and not any(planned)  # the planner is told the noise it reads
         return np.array(estimates[500:]), tracker
 
     fixed = np.mean([np.mean(np.abs(run(0.0, 0.014, s)[0] + 0.1)) for s in range(3)])
     aware = np.mean([np.mean(np.abs(run(1.0, 0.014, s)[0] + 0.1)) for s in range(3)])
     assert aware < 0.8 * fixed, (aware, fixed)
     _, tracker = run(1.0, 0.014, 0)
+    assert 0.011 < tracker.noise() < 0.017  # one period's 1.4 %
     assert 0.01 < tracker._deadband() < 0.03  # about 1.4 % x sqrt(1.5)
     quiet, tracker = run(1.0, 0.0, 0, k=0.0)  # no noise: climbs from -0.1 to the peak
     assert abs(np.mean(quiet[-300:])) < 0.02
-    assert tracker._deadband() < 1e-3
+    assert tracker._deadband() < 1e-3 and tracker.noise() < 1e-3
 
 
 def test_guard_recentres_then_hands_back_and_waits_a_growing_cooldown():
