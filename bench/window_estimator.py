@@ -18,8 +18,9 @@ windows it measures, against the true K (used for the scores only):
 
 Three splits: across plants (every fifth run's plant held out), the nominal cavity alone
 (its runs split in time), and each plant alone (a VAE per plant on the first 70 % of its
-runs' windows, scored on the rest: what a lab gets from its own laser's data). Writes JSON and prints a markdown table (the recorded one, with
-what it says, is ``bench/results/window_estimator.md``)::
+runs' windows, scored on the rest: what a lab gets from its own laser's data). Writes
+JSON and prints a markdown table (the recorded one, with what it says, is
+``bench/results/window_estimator.md``)::
 
     python bench/window_estimator.py --plants 9 --out bench/results/window_estimator.json
 """
