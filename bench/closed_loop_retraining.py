@@ -16,13 +16,21 @@ run the controller, aggregate what it measured, retrain, repeat. Each round:
 3. fine-tunes the shipped ensemble on the aggregated pairs of all but the last
    ``--val-plants`` plants, with the L2 pull toward its shipped weights, each member kept
    at the epoch that predicts the other plants' pairs best
-   (:func:`dlmpc_ros.training.adapt.fine_tune`);
+   (:func:`dlmpc_ros.training.adapt.fine_tune`).
+   With ``--rotation-data DIR`` (the pretraining's rotation data, ``data/response`` of
+   ``make models``) it instead fits a new ensemble as ``dlmpc-train response`` does (seed
+   0: on that data alone it gives the shipped weights back) on the rotation data's
+   training pairs and every closed-loop pair so far, so that the data keeps the large
+   rotations and the cliff the closed-loop runs never reach (DAgger's aggregation with
+   the original data);
 4. writes the models folder ``OUT/round-N/models`` (the shipped files, the retrained
    ``response.pt``) for ``bench/dlmpc_variants.py`` (variant ``{"models_dir": ...}``).
 
 ::
 
     python bench/closed_loop_retraining.py --plants 40 --rounds 3 --out /tmp/retrain
+    python bench/closed_loop_retraining.py --plants 40 --rounds 3 \\
+        --rotation-data data/response --out /tmp/aggregated
 
 Writes ``OUT/retraining.json`` (per round: pairs, errors before and after, epochs kept);
 the runs are kept in ``OUT/runs/`` and read back by a later call with the same ``--out``.
@@ -81,11 +89,26 @@ def closed_loop_runs(seeds: list[int], round_trips: int, models_dir: str, worker
     return [dict(np.load(path[s])) for s in seeds]
 
 
+def rotation_pairs(directory: Path) -> dict[str, np.ndarray]:
+    """The pretraining's pairs of the rotation data in ``directory`` (``dlmpc-train
+    response``'s ``data/response``): inputs and targets of its training plants (``x``,
+    ``y``) and of its held-out plants (``x_held``, ``y_held``), as the shipped stage splits
+    them."""
+    from dlmpc_ros.training import shards
+    from dlmpc_ros.training.stages.response import (FitSettings, PairRule, profile_pairs,
+                                                    split_pairs)
+    rule = PairRule()
+    x, y, _, held = split_pairs(shards.load_dataset(directory), rule, FitSettings.held_out)
+    x_held, y_held = (np.concatenate(q) for q in zip(*(profile_pairs(p, rule) for p in held)))
+    return {'x': x, 'y': y, 'x_held': x_held, 'y_held': y_held}
+
+
 def main(argv: list[str] | None = None) -> int:
     from dlmpc_ros.learning.checkpoint import save_checkpoint
     from dlmpc_ros.learning.curve import FILE_NAME, load_curve
     from dlmpc_ros.learning.response import load_response
-    from dlmpc_ros.training.adapt import AdaptConfig, _rmse, fine_tune, laser_pairs
+    from dlmpc_ros.training.adapt import AdaptConfig, fine_tune, laser_pairs, prediction_rmse
+    from dlmpc_ros.training.stages.response import FitSettings, fit_ensemble
 
     p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     p.add_argument('--plants', type=int, default=40, help='family plants 2001, 2002, ...')
@@ -95,6 +118,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--epochs', type=int, default=40)
     p.add_argument('--workers', type=int, default=default_workers())
     p.add_argument('--rounds', type=int, default=1)
+    p.add_argument('--rotation-data', type=Path, default=None,
+                   help="aggregate with the pretraining's rotation data in this folder (a "
+                        "workspace's data/response): each round fits a new ensemble as "
+                        "`dlmpc-train response` does (seed 0) on its pairs and every "
+                        "closed-loop pair so far, instead of fine-tuning the shipped one")
     p.add_argument('--out', type=Path, required=True)
     args = p.parse_args(argv)
     if not 0 < args.val_plants < args.plants:
@@ -105,6 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     grid, curve, _ = load_curve(models / FILE_NAME)
     cfg = AdaptConfig(epochs=args.epochs)
     cut = args.plants - args.val_plants
+    rotation = rotation_pairs(args.rotation_data) if args.rotation_data else None
     fit_pairs: list[tuple[np.ndarray, np.ndarray]] = []
     val_pairs: list[tuple[np.ndarray, np.ndarray]] = []
     rounds, previous = [], ''
@@ -117,18 +146,29 @@ def main(argv: list[str] | None = None) -> int:
         x, y = (np.concatenate([q[k] for q in fit_pairs]) for k in (0, 1))
         x_val, y_val = (np.concatenate([q[k] for q in val_pairs]) for k in (0, 1))
         model, payload = load_response(models / 'response.pt')
-        before = {'fit': _rmse(model, x, y), 'held_out_plants': _rmse(model, x_val, y_val)}
-        epochs = fine_tune(model, x, y, x_val, y_val, cfg)
-        after = {'fit': _rmse(model, x, y), 'held_out_plants': _rmse(model, x_val, y_val)}
+
+        judged = {'fit': (x, y), 'held_out_plants': (x_val, y_val)}
+        if rotation is not None:
+            judged['rotation_data_held_out_plants'] = (rotation['x_held'], rotation['y_held'])
+        before = {k: prediction_rmse(model, *pairs) for k, pairs in judged.items()}
+        if rotation is None:
+            epochs = fine_tune(model, x, y, x_val, y_val, cfg)
+        else:
+            model, _ = fit_ensemble(np.r_[rotation['x'], x], np.r_[rotation['y'], y],
+                                    FitSettings(), seed=0)
+            epochs = [FitSettings.epochs] * len(model.members)
+        after = {k: prediction_rmse(model, *pairs) for k, pairs in judged.items()}
         out_models = args.out / f'round-{r}' / 'models'
         shutil.copytree(models, out_models, dirs_exist_ok=True)
         report = {'round': r, 'collected_with': previous or 'shipped models, exploring',
+                  'aggregated_with_rotation_data': rotation is not None,
+                  'rotation_pairs': int(rotation['y'].size) if rotation is not None else 0,
                   'new_pairs': int(sum(q[1].size for q in pairs)), 'pairs': int(y.size),
                   'held_out_pairs': int(y_val.size), 'rmse_before': before,
                   'rmse_after': after, 'epochs_kept': epochs}
         save_checkpoint(out_models / 'response.pt', 'response', model.state_dict(),
-                        payload['config'], {**payload.get('metrics', {}),
-                                            'closed_loop_retraining': report},
+                        model.config.to_dict(),
+                        {**payload.get('metrics', {}), 'closed_loop_retraining': report},
                         payload.get('data_fingerprint', ''))
         rounds.append(report)
         print(json.dumps(report), flush=True)

@@ -198,11 +198,11 @@ def adapt_models(bag: Path, models_dir: Path, out: Path, cfg: AdaptConfig | None
         raise ValueError(f'{bag} holds too few pairs of settled states on the tracking curve '
                          f'to calibrate from ({y.size} to fit, {y_val.size} held out); record '
                          'a longer run of `bringup --controller explore`')
-    before, before_val = _rmse(model, x, y), _rmse(model, x_val, y_val)
+    before, before_val = prediction_rmse(model, x, y), prediction_rmse(model, x_val, y_val)
     coefficients, corrected_val = turn_correction(model, x, y, x_val, y_val, cfg)
     if cfg.fine_tune:
         epochs_kept = fine_tune(model, x, y, x_val, y_val, cfg, show_progress)
-        after, after_val = _rmse(model, x, y), _rmse(model, x_val, y_val)
+        after, after_val = prediction_rmse(model, x, y), prediction_rmse(model, x_val, y_val)
     else:  # the shipped predictor, unchanged
         epochs_kept, after, after_val = [0] * len(model.members), before, before_val
     knots = np.linspace(grid[0], grid[-1], TrackingConfig().rotation_knots)
@@ -304,5 +304,7 @@ def _predict(model, x: np.ndarray) -> np.ndarray:
         return model(torch.as_tensor(x, dtype=torch.float32)).mean(-1).numpy().astype(float)
 
 
-def _rmse(model, x: np.ndarray, y: np.ndarray) -> float:
+def prediction_rmse(model, x: np.ndarray, y: np.ndarray) -> float:
+    """RMSE of the ensemble's mean predicted change of log O on pairs ``x`` (m, 5), ``y``
+    (m,)."""
     return float(np.sqrt(np.mean((_predict(model, x) - y) ** 2)))

@@ -11,7 +11,7 @@ from dlmpc_ros.learning.curve import load_curve
 from dlmpc_ros.paths import models_dir
 from dlmpc_ros.learning.response import load_response
 from dlmpc_ros.learning.turn_correction import load_turn_correction, save_turn_correction
-from dlmpc_ros.training.adapt import (AdaptConfig, _rmse, fine_tune, laser_pairs,
+from dlmpc_ros.training.adapt import (AdaptConfig, prediction_rmse, fine_tune, laser_pairs,
                                       rotation_prior, split_periods, turn_correction)
 
 
@@ -106,7 +106,7 @@ def test_fine_tune_keeps_what_helps_on_held_out_pairs_and_the_shipped_weights_ot
     model, _ = load_response(models_dir() / 'response.pt')
     kept = fine_tune(model, x, y, x_val, y_val, cfg, show_progress=False)
     assert all(epoch > 0 for epoch in kept)
-    assert _rmse(model, x_val, y_val) < 0.5 * 0.3
+    assert prediction_rmse(model, x_val, y_val) < 0.5 * 0.3
     x_val, y_val = _pairs(rng, 100, -0.3)    # held-out pairs that contradict the fit
     model, _ = load_response(models_dir() / 'response.pt')
     shipped = [p.detach().clone() for p in model.parameters()]
@@ -123,12 +123,12 @@ def test_the_turn_correction_is_fit_to_what_the_predictor_misses_and_kept_if_it_
     coefficients, corrected = turn_correction(model, x, y, x_val, y_val, AdaptConfig())
     slope = coefficients[1] / 0.1                               # per rad
     assert -0.21 < slope < -0.19 and abs(coefficients[2]) < 0.01
-    assert corrected < 0.01 < _rmse(model, x_val, y_val)
+    assert corrected < 0.01 < prediction_rmse(model, x_val, y_val)
     # held-out pairs where turning up gains instead: the correction does not carry over
     coefficients, corrected = turn_correction(model, x, y, x_val, y_val + 0.4 * x_val[:, 4],
                                               AdaptConfig())
     assert not coefficients.any()
-    assert corrected == pytest.approx(_rmse(model, x_val, y_val + 0.4 * x_val[:, 4]))
+    assert corrected == pytest.approx(prediction_rmse(model, x_val, y_val + 0.4 * x_val[:, 4]))
 
 
 def test_a_turn_correction_file_round_trips_and_a_malformed_one_stops_the_controller(tmp_path):

@@ -121,22 +121,12 @@ def plan_figures(model: ResponseEnsemble, held_out: list[dict[str, np.ndarray]],
             'plans_that_lose_the_pulse': lost}
 
 
-def train_response_stage(ws: Workspace, seed: int, quick: bool = False,
-                         show_progress: bool = True, workers: int = 1,
-                         data_cfg: ResponseConfig | None = None) -> dict:
-    """Make the data if needed (``data_cfg``, default the shipped settings), fit the
-    ensemble, write ``models/response.pt``; returns the stage's metrics."""
-    started = time.monotonic()
-    grid, angles, _ = load_curve(ws.models_dir / FILE_NAME)
-    if data_cfg is None:
-        data_cfg = (ResponseConfig(plants=6, k_values=(-0.25, -0.1), offsets=(0.0,), steps=8,
-                                   settle=150, plants_per_task=3)
-                    if quick else ResponseConfig())
-    meta = generate_response(ws.response, data_cfg, grid, angles, show_progress, workers)
-    data = shards.load_dataset(ws.response)
-    rule, settings = PairRule(), FitSettings(epochs=2 if quick else FitSettings.epochs)
+def split_pairs(data: dict[str, np.ndarray], rule: PairRule, held_out: float
+                ) -> tuple[np.ndarray, np.ndarray, list[dict], list[dict]]:
+    """The training pairs (inputs (m, 5), targets (m,)) of the rotation data's plants but
+    the last ``held_out`` share, and the training and held-out plants' profiles."""
     plants = np.unique(data['plant'])
-    n_held = max(1, int(round(settings.held_out * plants.size))) if plants.size > 1 else 0
+    n_held = max(1, int(round(held_out * plants.size))) if plants.size > 1 else 0
     held = set(plants[plants.size - n_held:].tolist())
     train_x, train_y, held_profiles, train_profiles = [], [], [], []
     for profile in profiles(data):
@@ -147,9 +137,14 @@ def train_response_stage(ws: Workspace, seed: int, quick: bool = False,
             x, y = profile_pairs(profile, rule)
             train_x.append(x)
             train_y.append(y)
-    judged_on = 'held-out plants' if held_profiles else 'the training plant (only one)'
-    held_profiles = held_profiles or train_profiles
-    x, y = np.concatenate(train_x), np.concatenate(train_y)
+    return np.concatenate(train_x), np.concatenate(train_y), train_profiles, held_profiles
+
+
+def fit_ensemble(x: np.ndarray, y: np.ndarray, settings: FitSettings, seed: int,
+                 show_progress: bool = True) -> tuple[ResponseEnsemble, list]:
+    """A new ensemble, its input scaling from ``x`` (m, 5), each member fit to its own
+    bootstrap sample of the pairs ``(x, y)``; returns it (in eval mode) and the members'
+    loss histories."""
     config = ResponseModelConfig(members=settings.members, hidden=settings.hidden,
                                  mean=x.mean(0).tolist(),
                                  std=np.maximum(x.std(0), 1e-6).tolist())
@@ -167,12 +162,35 @@ def train_response_stage(ws: Workspace, seed: int, quick: bool = False,
                              settings.batch, settings.lr, seed + m, cosine=True,
                              desc=f'response member {m + 1}', show_progress=show_progress))
     model.eval()
+    return model, histories
+
+
+def train_response_stage(ws: Workspace, seed: int, quick: bool = False,
+                         show_progress: bool = True, workers: int = 1,
+                         data_cfg: ResponseConfig | None = None) -> dict:
+    """Make the data if needed (``data_cfg``, default the shipped settings), fit the
+    ensemble, write ``models/response.pt``; returns the stage's metrics."""
+    started = time.monotonic()
+    grid, angles, _ = load_curve(ws.models_dir / FILE_NAME)
+    if data_cfg is None:
+        data_cfg = (ResponseConfig(plants=6, k_values=(-0.25, -0.1), offsets=(0.0,), steps=8,
+                                   settle=150, plants_per_task=3)
+                    if quick else ResponseConfig())
+    meta = generate_response(ws.response, data_cfg, grid, angles, show_progress, workers)
+    data = shards.load_dataset(ws.response)
+    rule, settings = PairRule(), FitSettings(epochs=2 if quick else FitSettings.epochs)
+    plants = np.unique(data['plant'])
+    x, y, train_profiles, held_profiles = split_pairs(data, rule, settings.held_out)
+    held = sorted({int(p['plant'][0]) for p in held_profiles})
+    judged_on = 'held-out plants' if held_profiles else 'the training plant (only one)'
+    held_profiles = held_profiles or train_profiles
+    model, histories = fit_ensemble(x, y, settings, seed, show_progress)
     held_x, held_y = zip(*(profile_pairs(p, rule) for p in held_profiles))
     hx, hy = np.concatenate(held_x), np.concatenate(held_y)
     with torch.no_grad():
         predicted = model(torch.as_tensor(hx, dtype=torch.float32)).mean(-1).numpy()
     metrics = {
-        'data': {'plants': int(plants.size), 'held_out_plants': sorted(int(p) for p in held),
+        'data': {'plants': int(plants.size), 'held_out_plants': held,
                  'rows': int(data['plant'].size), 'training_pairs': int(y.size),
                  'fingerprint': meta['fingerprint'], 'settings': data_cfg.to_dict()},
         'fit': settings.to_dict(), 'pairs': asdict(rule),
@@ -183,6 +201,6 @@ def train_response_stage(ws: Workspace, seed: int, quick: bool = False,
         'figures_on': judged_on,
         'wall_seconds': round(time.monotonic() - started, 1),
     }
-    save_checkpoint(ws.model('response'), 'response', model.state_dict(), config.to_dict(),
+    save_checkpoint(ws.model('response'), 'response', model.state_dict(), model.config.to_dict(),
                     metrics, meta['fingerprint'])
     return metrics
