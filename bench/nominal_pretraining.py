@@ -33,7 +33,7 @@ def main(argv: list[str] | None = None) -> int:
     shutil.copytree(args.models_dir, models, dirs_exist_ok=True)
     ws = Workspace(args.out / 'data', models)
     config = replace(ResponseConfig(), plants=1, plants_per_task=1, nominal_only=True)
-    metrics = train_response_stage(ws, seed=0, data_cfg=config)
+    metrics = train_response_stage(ws, seed=0, data_cfg=config, closed_loop=False)
     print(f"nominal-only predictor in {models}: RMSE on the family's held-out plants is "
           f"not measured here; its own held-out figure {metrics['heldout_rmse_where_kept']:.4f}")
     return 0

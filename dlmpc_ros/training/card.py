@@ -109,6 +109,14 @@ def write_model_card(ws: Workspace) -> Path:
                      f"({r['heldout_plans']['plans_that_lose_the_pulse']} of "
                      f"{r['heldout_plans']['plans']} lose the pulse) | "
                      f"{r['heldout_plans']['share_of_best_gain']:.3f} | |")
+        if r.get('closed_loop', {}).get('rmse', {}).get('held_out_plants') is not None:
+            c = r['closed_loop']
+            seeds = c['held_out_plants']
+            lines.append(f"| response | RMSE of the predicted change of log O on the exploring "
+                         f"DL-MPC's own pairs, family plants {seeds[0]}-{seeds[-1]} held out "
+                         f"of its {c['pairs']} closed-loop pairs (rotation data alone: "
+                         f"{c['rmse_pretrained']['held_out_plants']:.3f}) | "
+                         f"{c['rmse']['held_out_plants']:.3f} | |")
     if 'mprnn' in metrics:
         m = metrics['mprnn']
         ratio = m['rmse_O_model'][-1] / m['rmse_O_persistence'][-1]

@@ -40,6 +40,11 @@ class Workspace:
         """The rotation data of the plant family (``dlmpc-train response``)."""
         return self.data_dir / 'response'
 
+    @property
+    def response_closed_loop(self) -> Path:
+        """The exploring DL-MPC's runs on training plants (``dlmpc-train response``)."""
+        return self.data_dir / 'response_closed_loop'
+
     def model(self, kind: str) -> Path:
         return self.models_dir / f'{kind}.pt'
 

@@ -122,6 +122,9 @@ def test_train_command_builds_every_model_file_and_the_card(quick_data, tmp_path
     metrics = json.loads((models / 'metrics.json').read_text())
     held_out = load_trajectories(quick_data / 'trajectories')['held_out']
     assert metrics['mprnn']['train_trajectories'] == (~held_out).sum() + QUICK_EXTRA_LANES
+    closed_loop = metrics['response']['closed_loop']   # aggregated with its own runs
+    assert closed_loop['held_out_plants'] == [2002] and closed_loop['pairs'] > 0
+    assert metrics['response']['data']['training_pairs'] > closed_loop['pairs']
 
     report = tmp_path / 'check'
     assert train_main(['check-estimator', '--quick', '--no-progress', '--data-dir',

@@ -28,6 +28,8 @@ from dlmpc_ros.learning.fit import fit
 from dlmpc_ros.learning.response import (FEATURES, LOST, ResponseEnsemble,
                                          ResponseModelConfig)
 from dlmpc_ros.training import shards
+from dlmpc_ros.training.adapt import AdaptConfig, laser_pairs, prediction_rmse
+from dlmpc_ros.training.closed_loop import ClosedLoopConfig, closed_loop_runs
 from dlmpc_ros.training.response import ResponseConfig, generate_response
 from dlmpc_ros.training.workspace import Workspace
 
@@ -167,9 +169,13 @@ def fit_ensemble(x: np.ndarray, y: np.ndarray, settings: FitSettings, seed: int,
 
 def train_response_stage(ws: Workspace, seed: int, quick: bool = False,
                          show_progress: bool = True, workers: int = 1,
-                         data_cfg: ResponseConfig | None = None) -> dict:
+                         data_cfg: ResponseConfig | None = None,
+                         closed_loop: bool = True) -> dict:
     """Make the data if needed (``data_cfg``, default the shipped settings), fit the
-    ensemble, write ``models/response.pt``; returns the stage's metrics."""
+    ensemble, write ``models/response.pt``; with ``closed_loop``, then run the exploring
+    DL-MPC on training plants (:mod:`dlmpc_ros.training.closed_loop`, runs kept in
+    ``data/response_closed_loop``) and fit the ensemble again to the rotation pairs and
+    those runs' pairs. Returns the stage's metrics."""
     started = time.monotonic()
     grid, angles, _ = load_curve(ws.models_dir / FILE_NAME)
     if data_cfg is None:
@@ -185,22 +191,55 @@ def train_response_stage(ws: Workspace, seed: int, quick: bool = False,
     judged_on = 'held-out plants' if held_profiles else 'the training plant (only one)'
     held_profiles = held_profiles or train_profiles
     model, histories = fit_ensemble(x, y, settings, seed, show_progress)
-    held_x, held_y = zip(*(profile_pairs(p, rule) for p in held_profiles))
-    hx, hy = np.concatenate(held_x), np.concatenate(held_y)
-    with torch.no_grad():
-        predicted = model(torch.as_tensor(hx, dtype=torch.float32)).mean(-1).numpy()
     metrics = {
         'data': {'plants': int(plants.size), 'held_out_plants': held,
                  'rows': int(data['plant'].size), 'training_pairs': int(y.size),
                  'fingerprint': meta['fingerprint'], 'settings': data_cfg.to_dict()},
         'fit': settings.to_dict(), 'pairs': asdict(rule),
         'loss_history': [h[-1] for h in histories],
-        'heldout_rmse_log_ratio': float(np.sqrt(np.mean((predicted - hy) ** 2))),
-        'heldout_rmse_where_kept': float(np.sqrt(np.mean(((predicted - hy) ** 2)[hy > LOST]))),
-        'heldout_plans': plan_figures(model, held_profiles, rule, settings),
-        'figures_on': judged_on,
-        'wall_seconds': round(time.monotonic() - started, 1),
+        **rotation_figures(model, held_profiles, rule, settings), 'figures_on': judged_on,
     }
+    if closed_loop:
+        save_checkpoint(ws.model('response'), 'response', model.state_dict(),
+                        model.config.to_dict(), metrics, meta['fingerprint'])
+        cfg = (ClosedLoopConfig(plants=2, validation_plants=1, round_trips=1500)
+               if quick else ClosedLoopConfig())
+        runs = closed_loop_runs(cfg, ws.models_dir, ws.response_closed_loop, workers,
+                                show_progress=show_progress)
+        pairs = [laser_pairs(run, grid, angles, AdaptConfig())[:2] for run in runs]
+        cut = cfg.plants - cfg.validation_plants
+        cx, cy = (np.concatenate([q[k] for q in pairs[:cut]]) for k in (0, 1))
+        vx, vy = (np.concatenate([q[k] for q in pairs[cut:]]) for k in (0, 1))
+        before = {'fit': prediction_rmse(model, cx, cy) if cy.size else None,
+                  'held_out_plants': prediction_rmse(model, vx, vy) if vy.size else None}
+        model, histories = fit_ensemble(np.r_[x, cx], np.r_[y, cy], settings, seed,
+                                        show_progress)
+        metrics['closed_loop'] = {
+            'settings': cfg.to_dict(), 'pairs': int(cy.size), 'held_out_pairs': int(vy.size),
+            'held_out_plants': cfg.seeds[cut:],
+            'rmse_pretrained': before,
+            'rmse': {'fit': prediction_rmse(model, cx, cy) if cy.size else None,
+                     'held_out_plants': prediction_rmse(model, vx, vy) if vy.size else None},
+            'rotation_data_only': {k: metrics[k] for k in (
+                'loss_history', 'heldout_rmse_log_ratio', 'heldout_rmse_where_kept',
+                'heldout_plans')}}
+        metrics.update(loss_history=[h[-1] for h in histories],
+                       **rotation_figures(model, held_profiles, rule, settings))
+        metrics['data']['training_pairs'] = int(y.size + cy.size)
+    metrics['wall_seconds'] = round(time.monotonic() - started, 1)
     save_checkpoint(ws.model('response'), 'response', model.state_dict(), model.config.to_dict(),
                     metrics, meta['fingerprint'])
     return metrics
+
+
+def rotation_figures(model: ResponseEnsemble, held_profiles: list[dict[str, np.ndarray]],
+                     rule: PairRule, settings: FitSettings) -> dict:
+    """The RMSEs of the predicted change of log O on the held-out profiles' pairs (all of
+    them; where the pulse is kept) and the one-step plans' figures there."""
+    held_x, held_y = zip(*(profile_pairs(p, rule) for p in held_profiles))
+    hx, hy = np.concatenate(held_x), np.concatenate(held_y)
+    with torch.no_grad():
+        predicted = model(torch.as_tensor(hx, dtype=torch.float32)).mean(-1).numpy()
+    return {'heldout_rmse_log_ratio': float(np.sqrt(np.mean((predicted - hy) ** 2))),
+            'heldout_rmse_where_kept': float(np.sqrt(np.mean(((predicted - hy) ** 2)[hy > LOST]))),
+            'heldout_plans': plan_figures(model, held_profiles, rule, settings)}
