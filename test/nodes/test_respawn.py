@@ -150,8 +150,10 @@ def test_respawn_restarts_killed_nodes_while_the_laser_runs_on(ros_env, tmp_path
             f'came back at round trip {kill.back}; O there: {run["O"][kill.back - 1:][:500:50]}')
         if victim == 'vae_estimator':
             # States after the kill get no estimate until the new estimator runs: the
-            # controller tracks the curve (which needs no estimate), or holds, plans or
-            # scans for lock without a surrogate, and says so; then estimates are back.
+            # controller tracks the curve and its planner turns it (neither needs the
+            # estimator: they report the tracker's own estimate), or holds, plans with the
+            # MP-RNN or scans for lock without a surrogate, and says so; then estimates
+            # are back.
             # The probe's clock (``killed``) can lag the laser's under load, so the window
             # may begin with decisions made before the kill: the estimator's absence is
             # the longest run of decisions without a fresh estimate in it.
@@ -166,8 +168,9 @@ def test_respawn_restarts_killed_nodes_while_the_laser_runs_on(ros_env, tmp_path
             returned = int(ends[longest])
             assert (gap['surrogate_valid'][returned:] == 1).all()
             modes = {MODES[int(m)] for m in silent['mode']}
-            assert modes <= {'hold', 'outer', 'acquire', 'track'}, modes
-            untracked = silent[silent['mode'] != MODES.index('track')]
+            assert modes <= {'hold', 'outer', 'acquire', 'track', 'plan'}, modes
+            tracker = [MODES.index('track'), MODES.index('plan')]
+            untracked = silent[~np.isin(silent['mode'], tracker)]
             assert (untracked['surrogate_valid'] == 0).all()
         if victim == 'drift_injector':  # meanwhile K stood still, then moves again
             moves = np.flatnonzero(np.diff(run['K'][kill.killed + 20:kill.back + 200]))
