@@ -29,6 +29,7 @@ import numpy as np
 
 from dlmpc_ros.core import checks
 from dlmpc_ros.core.cavity import Cavity
+from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.fingerprint import fingerprint_arrays
 from dlmpc_ros.core.plants import NOMINAL, PlantFamily
 from dlmpc_ros.scaleout import TaskFailure, run_tasks
@@ -92,28 +93,35 @@ def curve_angles(grid: np.ndarray, angles: np.ndarray, u: np.ndarray) -> np.ndar
 
 def response_rows(task: ResponseTask) -> np.ndarray:
     """The rows ``(m, 6)`` of :data:`COLUMNS` of the task's plants."""
-    cfg = task.config
     family = PlantFamily()
+    return np.concatenate([
+        plant_rows(NOMINAL if task.config.nominal_only else family.draw(seed), seed,
+                   task.config, task.grid, task.angles)
+        for seed in task.seeds])
+
+
+def plant_rows(plant: CavityConfig, label: int, cfg: ResponseConfig, grid: np.ndarray,
+               angles: np.ndarray) -> np.ndarray:
+    """The rows ``(m, 6)`` of :data:`COLUMNS` of one plant (``label`` in the plant column):
+    every K and curve point of ``cfg``, the rotation stepped away from 0 both ways."""
     k = np.repeat(np.asarray(cfg.k_values, float), len(cfg.offsets))
     u = k + np.tile(np.asarray(cfg.offsets, float), len(cfg.k_values))
     k, u = np.r_[k, k], np.r_[u, u]                       # one lane each way
     way = np.repeat([1.0, -1.0], k.size // 2)
-    base = curve_angles(task.grid, task.angles, u)
+    base = curve_angles(grid, angles, u)
+    cavity = Cavity(plant, batch=k.size, angles=base, birefringence=k)
+    cavity.run(cfg.settle)
     rows = []
-    for seed in task.seeds:
-        plant = NOMINAL if cfg.nominal_only else family.draw(seed)
-        cavity = Cavity(plant, batch=k.size, angles=base, birefringence=k)
-        cavity.run(cfg.settle)
-        for i in range(cfg.steps + 1):
-            theta = way * cfg.step * i
-            if i:
-                cavity.set_angles(base + theta[:, None])
-                result = cavity.run(cfg.hold).last()
-            else:
-                result = cavity.run(1).last()
-            keep = way > 0 if i == 0 else np.ones(k.size, bool)  # theta = 0 once
-            rows.append(np.stack([np.full(k.size, seed), k, u, theta, result.E, result.M],
-                                 axis=1)[keep])
+    for i in range(cfg.steps + 1):
+        theta = way * cfg.step * i
+        if i:
+            cavity.set_angles(base + theta[:, None])
+            result = cavity.run(cfg.hold).last()
+        else:
+            result = cavity.run(1).last()
+        keep = way > 0 if i == 0 else np.ones(k.size, bool)  # theta = 0 once
+        rows.append(np.stack([np.full(k.size, label), k, u, theta, result.E, result.M],
+                             axis=1)[keep])
     return np.concatenate(rows)
 
 
