@@ -208,8 +208,8 @@ def train_response_stage(ws: Workspace, seed: int, quick: bool = False,
                                 show_progress=show_progress)
         pairs = [laser_pairs(run, grid, angles, AdaptConfig())[:2] for run in runs]
         cut = cfg.plants - cfg.validation_plants
-        cx, cy = (np.concatenate([q[k] for q in pairs[:cut]]) for k in (0, 1))
-        vx, vy = (np.concatenate([q[k] for q in pairs[cut:]]) for k in (0, 1))
+        cx, cy = _joined(pairs[:cut])
+        vx, vy = _joined(pairs[cut:])
         before = {'fit': prediction_rmse(model, cx, cy) if cy.size else None,
                   'held_out_plants': prediction_rmse(model, vx, vy) if vy.size else None}
         model, histories = fit_ensemble(np.r_[x, cx], np.r_[y, cy], settings, seed,
@@ -243,3 +243,10 @@ def rotation_figures(model: ResponseEnsemble, held_profiles: list[dict[str, np.n
     return {'heldout_rmse_log_ratio': float(np.sqrt(np.mean((predicted - hy) ** 2))),
             'heldout_rmse_where_kept': float(np.sqrt(np.mean(((predicted - hy) ** 2)[hy > LOST]))),
             'heldout_plans': plan_figures(model, held_profiles, rule, settings)}
+
+
+def _joined(pairs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """The inputs (m, 5) and targets (m,) of several runs' pairs, one after the other."""
+    if not pairs:
+        return np.empty((0, len(FEATURES))), np.empty(0)
+    return np.concatenate([q[0] for q in pairs]), np.concatenate([q[1] for q in pairs])
