@@ -56,11 +56,11 @@ def rotation_pairs(directory: Path) -> dict[str, np.ndarray]:
     ``y``) and of its held-out plants (``x_held``, ``y_held``), as the shipped stage splits
     them."""
     from dlmpc_ros.training import shards
-    from dlmpc_ros.training.stages.response import (FitSettings, PairRule, profile_pairs,
-                                                    split_pairs)
+    from dlmpc_ros.training.stages.response import (FitSettings, PairRule, joined_pairs,
+                                                    profile_pairs, split_pairs)
     rule = PairRule()
     x, y, _, held = split_pairs(shards.load_dataset(directory), rule, FitSettings.held_out)
-    x_held, y_held = (np.concatenate(q) for q in zip(*(profile_pairs(p, rule) for p in held)))
+    x_held, y_held = joined_pairs([profile_pairs(p, rule) for p in held])
     return {'x': x, 'y': y, 'x_held': x_held, 'y_held': y_held}
 
 
@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     from dlmpc_ros.learning.response import load_response
     from dlmpc_ros.training.adapt import AdaptConfig, fine_tune, laser_pairs, prediction_rmse
     from dlmpc_ros.training.closed_loop import ClosedLoopConfig, closed_loop_runs
-    from dlmpc_ros.training.stages.response import FitSettings, fit_ensemble
+    from dlmpc_ros.training.stages.response import FitSettings, fit_ensemble, joined_pairs
 
     p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     p.add_argument('--plants', type=int, default=40, help='family plants 2001, 2002, ...')
@@ -108,8 +108,8 @@ def main(argv: list[str] | None = None) -> int:
         pairs = [laser_pairs(run, grid, curve, cfg)[:2] for run in runs]
         fit_pairs += pairs[:cut]
         val_pairs += pairs[cut:]
-        x, y = (np.concatenate([q[k] for q in fit_pairs]) for k in (0, 1))
-        x_val, y_val = (np.concatenate([q[k] for q in val_pairs]) for k in (0, 1))
+        x, y = joined_pairs(fit_pairs)
+        x_val, y_val = joined_pairs(val_pairs)
         model, payload = load_response(models / 'response.pt')
 
         judged = {'fit': (x, y), 'held_out_plants': (x_val, y_val)}

@@ -60,14 +60,13 @@ class ClosedLoopConfig:
 
 @dataclass(frozen=True)
 class RunJob:
-    """One closed-loop run: family plant ``plant_seed`` with the models of
+    """One closed-loop run of ``config``: family plant ``plant_seed`` with the models of
     ``models_dir``, exploring or planning."""
 
     plant_seed: int
     models_dir: str
-    explore: bool = True
-    round_trips: int = 20000
-    drift_seed: int = 77
+    explore: bool
+    config: ClosedLoopConfig
 
 
 def closed_loop_run(job: RunJob) -> dict[str, np.ndarray]:
@@ -81,8 +80,8 @@ def closed_loop_run(job: RunJob) -> dict[str, np.ndarray]:
     from dlmpc_ros.training.envelope import PlantTask, draw_task
     models = Path(job.models_dir)
     plant = draw_task(PlantTask(str(models / 'oracle.npz'), seed=job.plant_seed))['plant']
-    spec = RunSpec('random_walk', job.drift_seed, 'dlmpc', round_trips=job.round_trips,
-                   plant=plant)
+    spec = RunSpec('random_walk', job.config.drift_seed, 'dlmpc',
+                   round_trips=job.config.round_trips, plant=plant)
     controller = load_dlmpc(models, DLMPCConfig(limits=AngleLimits(max_step=spec.max_step),
                                                 planner=PlannerConfig(explore=job.explore)))
     record = run_fast(spec, models, controller)
@@ -103,7 +102,7 @@ def closed_loop_runs(cfg: ClosedLoopConfig, models_dir: Path, directory: Path,
     tag = f"{cfg.round_trips}-{cfg.drift_seed}-{'explore' if explore else 'plan'}"
     path = {s: directory / f'{s}-{tag}.npz' for s in cfg.seeds}
     todo = [s for s in cfg.seeds if not path[s].is_file()]
-    jobs = [RunJob(s, str(models_dir), explore, cfg.round_trips, cfg.drift_seed) for s in todo]
+    jobs = [RunJob(s, str(models_dir), explore, cfg) for s in todo]
 
     def save(index: int, run: dict | TaskFailure) -> None:
         if not isinstance(run, TaskFailure):

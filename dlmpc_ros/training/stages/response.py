@@ -130,16 +130,11 @@ def split_pairs(data: dict[str, np.ndarray], rule: PairRule, held_out: float
     plants = np.unique(data['plant'])
     n_held = max(1, int(round(held_out * plants.size))) if plants.size > 1 else 0
     held = set(plants[plants.size - n_held:].tolist())
-    train_x, train_y, held_profiles, train_profiles = [], [], [], []
+    train_profiles, held_profiles = [], []
     for profile in profiles(data):
-        if int(profile['plant'][0]) in held:
-            held_profiles.append(profile)
-        else:
-            train_profiles.append(profile)
-            x, y = profile_pairs(profile, rule)
-            train_x.append(x)
-            train_y.append(y)
-    return np.concatenate(train_x), np.concatenate(train_y), train_profiles, held_profiles
+        (held_profiles if int(profile['plant'][0]) in held else train_profiles).append(profile)
+    x, y = joined_pairs([profile_pairs(p, rule) for p in train_profiles])
+    return x, y, train_profiles, held_profiles
 
 
 def fit_ensemble(x: np.ndarray, y: np.ndarray, settings: FitSettings, seed: int,
@@ -199,7 +194,7 @@ def train_response_stage(ws: Workspace, seed: int, quick: bool = False,
         'loss_history': [h[-1] for h in histories],
         **rotation_figures(model, held_profiles, rule, settings), 'figures_on': judged_on,
     }
-    if closed_loop:
+    if closed_loop:   # the exploring controller loads models_dir, response.pt included
         save_checkpoint(ws.model('response'), 'response', model.state_dict(),
                         model.config.to_dict(), metrics, meta['fingerprint'])
         cfg = (ClosedLoopConfig(plants=2, validation_plants=1, round_trips=1500)
@@ -208,8 +203,8 @@ def train_response_stage(ws: Workspace, seed: int, quick: bool = False,
                                 show_progress=show_progress)
         pairs = [laser_pairs(run, grid, angles, AdaptConfig())[:2] for run in runs]
         cut = cfg.plants - cfg.validation_plants
-        cx, cy = _joined(pairs[:cut])
-        vx, vy = _joined(pairs[cut:])
+        cx, cy = joined_pairs(pairs[:cut])
+        vx, vy = joined_pairs(pairs[cut:])
         before = {'fit': prediction_rmse(model, cx, cy) if cy.size else None,
                   'held_out_plants': prediction_rmse(model, vx, vy) if vy.size else None}
         model, histories = fit_ensemble(np.r_[x, cx], np.r_[y, cy], settings, seed,
@@ -236,8 +231,7 @@ def rotation_figures(model: ResponseEnsemble, held_profiles: list[dict[str, np.n
                      rule: PairRule, settings: FitSettings) -> dict:
     """The RMSEs of the predicted change of log O on the held-out profiles' pairs (all of
     them; where the pulse is kept) and the one-step plans' figures there."""
-    held_x, held_y = zip(*(profile_pairs(p, rule) for p in held_profiles))
-    hx, hy = np.concatenate(held_x), np.concatenate(held_y)
+    hx, hy = joined_pairs([profile_pairs(p, rule) for p in held_profiles])
     with torch.no_grad():
         predicted = model(torch.as_tensor(hx, dtype=torch.float32)).mean(-1).numpy()
     return {'heldout_rmse_log_ratio': float(np.sqrt(np.mean((predicted - hy) ** 2))),
@@ -245,8 +239,9 @@ def rotation_figures(model: ResponseEnsemble, held_profiles: list[dict[str, np.n
             'heldout_plans': plan_figures(model, held_profiles, rule, settings)}
 
 
-def _joined(pairs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
-    """The inputs (m, 5) and targets (m,) of several runs' pairs, one after the other."""
+def joined_pairs(pairs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """The inputs (m, 5) and targets (m,) of several profiles' or runs' pairs, one after
+    the other (none: empty arrays)."""
     if not pairs:
         return np.empty((0, len(FEATURES))), np.empty(0)
     return np.concatenate([q[0] for q in pairs]), np.concatenate([q[1] for q in pairs])
