@@ -336,9 +336,18 @@ def main(argv: list[str] | None = None) -> int:
     requested = stop_on_signals()  # from here a Ctrl-C stops the graph in order
     graph.start()
     try:
-        code = run_monitor(args, graph, requested)
+        code = run_monitor(args, graph, requested, lambda code: stop_graph(args, graph, code))
     finally:
-        exit_codes = graph.stop(args.stop_timeout)
+        graph.stop(args.stop_timeout)  # a no-op once run_monitor has stopped it
+    if args.plot is not None and args.csv is not None and args.csv.exists():
+        plot(args, plant)
+    return code
+
+
+def stop_graph(args: argparse.Namespace, graph: NodeGraph, code: int) -> int:
+    """Stop every node, say which were restarted or did not exit cleanly; returns the
+    bringup's exit code (at least 1 if a node did not exit cleanly)."""
+    exit_codes = graph.stop(args.stop_timeout)
     restarts = {n.name: n.restart_count for n in graph.nodes if n.restart_count}
     if restarts:
         print(f'bringup: nodes restarted during the run (times): {restarts}', flush=True)
@@ -346,8 +355,6 @@ def main(argv: list[str] | None = None) -> int:
     if unclean:
         print(f'bringup: nodes that did not exit cleanly: {unclean}', file=sys.stderr)
         code = max(code, 1)
-    if args.plot is not None and args.csv is not None and args.csv.exists():
-        plot(args, plant)
     return code
 
 

@@ -27,6 +27,7 @@ from dlmpc_ros import interfaces as itf
 from dlmpc_ros.graph import STARTUP_ERROR, NodeGraph
 from dlmpc_ros.ros.io import QOS
 from dlmpc_ros.ros.params import process_age
+from dlmpc_ros.ros.teardown import TEARDOWN_GRACE, exit_after
 from dlmpc_ros.recording.run_csv import DECISION_FIELDS, decisions_path, write_header, write_row
 
 #: States wait at most this many rows for their K before they are written without it.
@@ -130,10 +131,12 @@ def status_line(state: list[float], k: float, rate: float) -> str:
             f'M {state[2]:7.2f}  K {k_text}  {rate:6.0f} RT/s')
 
 
-def run_monitor(args: argparse.Namespace, graph: NodeGraph,
-                requested: threading.Event) -> int:
-    """Spin the monitor until the run ends or ``requested`` is set (SIGINT, SIGTERM);
-    returns the bringup's exit code so far."""
+def run_monitor(args: argparse.Namespace, graph: NodeGraph, requested: threading.Event,
+                finish: Callable[[int], int]) -> int:
+    """Spin the monitor until the run ends or ``requested`` is set (SIGINT, SIGTERM), then
+    ``finish(code)`` (stop the graph; returns the bringup's exit code) before the monitor's
+    own node goes, so that a middleware teardown that hangs (:mod:`dlmpc_ros.ros.teardown`)
+    cannot leave the graph running; returns the bringup's exit code."""
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     files = []
     writer = decision_writer = None
@@ -158,47 +161,60 @@ def run_monitor(args: argparse.Namespace, graph: NodeGraph,
     node = MonitorNode(on_row, on_decision if decision_writer is not None else None)
     executor = EventsExecutor()
     executor.add_node(node)
-    need_k = 'drift_injector' in args.nodes
-    tty = sys.stdout.isatty()
-    code = 0
+    code = 1  # if the spin raises
     try:
-        start = time.monotonic()
-        while node.state is None or (need_k and not node.k_seen):
-            executor.spin_once(timeout_sec=0.1)
-            if requested.is_set():
-                return 0
-            if graph.died() or time.monotonic() - start > args.connect_timeout:
-                print('bringup: the graph did not connect', file=sys.stderr)
-                return _report_dead(graph) or 2
-        print(f'bringup: graph connected {process_age():.1f} s after the bringup started',
-              flush=True)
-        last_print, last_count, last_time = 0.0, node.count, time.monotonic()
-        while limit == 0 or node.state[0] < limit:
-            executor.spin_once(timeout_sec=0.05)
-            if requested.is_set():
-                print('\nbringup: interrupted, stopping the graph', flush=True)
-                break
-            if graph.died():
-                return _report_dead(graph)
-            now = time.monotonic()
-            if now - last_print >= (0.25 if tty else 2.0):
-                rate = (node.count - last_count) / max(now - last_time, 1e-9)
-                last_count, last_time, last_print = node.count, now, now
-                line = status_line(node.state, node.k, rate)
-                print('\r' + line if tty else line, end='' if tty else '\n', flush=True)
+        code = _spin(args, graph, requested, node, executor)
     finally:
         node.flush(everything=True)
         node.flush_decisions(everything=True)
-        if tty:
+        if sys.stdout.isatty():
             print()
         if node.state is not None:
             print('bringup: last ' + status_line(node.state, node.k, 0.0).rsplit('  ', 1)[0])
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
         for handle in files:
             handle.close()
+        code = finish(code)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        with exit_after(TEARDOWN_GRACE, code):
+            executor.shutdown()
+            node.destroy_node()
+            rclpy.try_shutdown()
     return code
+
+
+def _spin(args: argparse.Namespace, graph: NodeGraph, requested: threading.Event,
+          node: MonitorNode, executor: EventsExecutor) -> int:
+    """Wait for the graph to connect, then show status until the run ends; returns the
+    exit code so far (0: ran to the end or stopped on request)."""
+    limit = args.round_trips
+    need_k = 'drift_injector' in args.nodes
+    tty = sys.stdout.isatty()
+    start = time.monotonic()
+    while node.state is None or (need_k and not node.k_seen):
+        executor.spin_once(timeout_sec=0.1)
+        if requested.is_set():
+            return 0
+        if graph.died() or time.monotonic() - start > args.connect_timeout:
+            print('bringup: the graph did not connect', file=sys.stderr)
+            return _report_dead(graph) or 2
+    print(f'bringup: graph connected {process_age():.1f} s after the bringup started',
+          flush=True)
+    last_print, last_count, last_time = 0.0, node.count, time.monotonic()
+    while limit == 0 or node.state[0] < limit:
+        executor.spin_once(timeout_sec=0.05)
+        if requested.is_set():
+            print('\nbringup: interrupted, stopping the graph', flush=True)
+            break
+        if graph.died():
+            return _report_dead(graph)
+        now = time.monotonic()
+        if now - last_print >= (0.25 if tty else 2.0):
+            rate = (node.count - last_count) / max(now - last_time, 1e-9)
+            last_count, last_time, last_print = node.count, now, now
+            line = status_line(node.state, node.k, rate)
+            print('\r' + line if tty else line, end='' if tty else '\n', flush=True)
+    return 0
 
 
 def _report_dead(graph: NodeGraph) -> int:

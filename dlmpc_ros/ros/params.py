@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -18,6 +19,8 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+
+from dlmpc_ros.ros.teardown import TEARDOWN_GRACE, exit_after
 
 
 class StartupError(ValueError):
@@ -131,6 +134,8 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
     Returns the exit code: the node's ``exit_code`` attribute (0 if it has none), or 2 with
     one log line (no traceback) when the constructor raises :class:`StartupError`, a
     parameter has the wrong type, or the ROS arguments or parameter file cannot be read.
+    A teardown of the executor, node and context that takes over ``TEARDOWN_GRACE`` s ends
+    the process with that code (:mod:`dlmpc_ros.ros.teardown`).
     """
     requested = stop_on_signals()
     fatal = rclpy.logging.get_logger('dlmpc_ros').fatal
@@ -170,9 +175,13 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
                 stop()
             if rclpy.ok():  # the last messages reach the readers before the node goes
                 wait_for_acknowledgements(node)
-        if executor is not None:
-            executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+        # the work is done: a middleware teardown that hangs must not keep the process
+        sys.stdout.flush()
+        sys.stderr.flush()
+        with exit_after(TEARDOWN_GRACE, 1 if sys.exc_info()[0] is not None else code):
+            if executor is not None:
+                executor.shutdown()
+            if node is not None:
+                node.destroy_node()
+            rclpy.try_shutdown()
     return code

@@ -224,11 +224,13 @@ def test_a_bringup_keeps_its_graph_to_itself(ros_env, tmp_path):
                 address = ipaddress.ip_address(ip)
                 assert address.is_loopback or address.is_multicast, (node.cmdline(), ip)
         proc.send_signal(signal.SIGINT)
-        proc.communicate(timeout=60)
+        out += proc.communicate(timeout=60)[0]
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert proc.returncode == 0
+    logs = ''.join(f'\n--- {log.name}\n{log.read_text()[-2000:]}'
+                   for log in sorted((tmp_path / 'a').glob('*.log')))
+    assert proc.returncode == 0, out + logs
     # the domain is free again once the first graph has stopped
     third = subprocess.Popen(command + ['--log-dir', str(tmp_path / 'c')], env=env,
                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
