@@ -64,6 +64,7 @@ class DriftInjectorNode(Node):
         self._warn = itf.RateLimitedLog(self.get_logger().warning)
         self._furthest = 0
         self.published = 0
+        self.states_received = 0
         self._scenario_name = str(values['scenario'])
         self._last_state: float | None = None
         self._drops = CounterWindow()
@@ -75,6 +76,7 @@ class DriftInjectorNode(Node):
         self.get_logger().info(f'drift scenario {values["scenario"]} {settings}')
 
     def _on_state(self, msg: Float64MultiArray) -> None:
+        self.states_received += 1
         if not itf.usable_state(msg.data, self._warn):
             return
         round_trip = int(msg.data[0])
@@ -97,6 +99,13 @@ class DriftInjectorNode(Node):
                        silent_level=WARN)
         return findings.health(f'{self.published} K published, scenario '
                                f'{self._scenario_name}')
+
+    def drain(self, executor) -> None:
+        """Take the states still queued when asked to stop and publish their K: at full
+        speed the injector can be some hundred round trips behind the laser, and each
+        round trip the laser ran should have its K in a recording (the recorder stops
+        last)."""
+        params.drain_until_quiet(executor, lambda: self.states_received, longest=5.0)
 
     def stop(self) -> None:
         """Log what was published (the other side's count is in laser_sim's log)."""
