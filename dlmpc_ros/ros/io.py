@@ -3,8 +3,9 @@
 What each topic promises (all reliable and volatile: a late joiner gets only new
 messages). A reliable writer with a keep-last history drops a sample that a slow reader
 has not acknowledged once ``depth`` newer ones follow, and Fast DDS repairs a lost sample
-only at its next heartbeat (3 s by default): the depth is what a reader may fall behind,
-or a repair may take, without losing a message.
+only at its next heartbeat (3 s by default, 0.1 s in the bringup's profile
+``config/fastdds_loopback.xml``): the depth is what a reader may fall behind, or a repair
+may take, without losing a message.
 
 ============================  ==================  ==============================================
 topic                         history             promise
