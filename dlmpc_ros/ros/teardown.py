@@ -1,16 +1,16 @@
 """A deadline on a node's middleware teardown that holds even while Python cannot run.
 
-Fast DDS 2.14 sometimes never returns from destroying a node's participant: measured
-here, 2 of about 450 stops of a bringup left ``laser_sim`` or ``drift_injector`` spinning
-in ``DomainParticipant::set_listener`` (under ``rcl_node_fini``) until the bringup killed
-it, 13 s later, and reported the run unclean. That call holds the GIL, so no Python
-thread, signal handler or timer can end it. :func:`exit_after` arms a POSIX timer whose
-expiry calls the C library's ``_exit`` on a thread of its own (``SIGEV_THREAD``): once a
-node has done its work (drained, stopped, its last messages acknowledged), a teardown
-that overruns ends the process with the node's own exit code instead of hanging (seen
-once in about 170 further stops: a stop of 8.3 s, 3 s of it waiting for acknowledgements
-and 5 s this deadline, exit code 0). Linux (glibc 2.34 or later) only; elsewhere
-:func:`exit_after` arms nothing.
+Fast DDS 2.14 sometimes never returns from destroying a node's participant: in about 450
+stops of a bringup here, a node twice had to be killed 13 s after the stop began
+(``laser_sim`` once, ``drift_injector`` once), and the run was reported unclean; the one
+caught in the act spun in ``DomainParticipant::set_listener`` under ``rcl_node_fini``,
+holding the GIL, so no Python thread, signal handler or timer could end it.
+:func:`exit_after` arms a POSIX timer whose expiry calls the C library's ``_exit`` on a
+thread of its own (``SIGEV_THREAD``): once a node has done its work (drained, stopped,
+its last messages acknowledged), a teardown that overruns ends the process with the
+node's own exit code instead of hanging. Seen once in about 170 further stops: a stop
+of 8.3 s (3 s waiting for acknowledgements, then this 5 s deadline) with exit code 0.
+Linux (glibc 2.34 or later) only; elsewhere :func:`exit_after` arms nothing.
 """
 
 from __future__ import annotations
