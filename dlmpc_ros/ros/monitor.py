@@ -174,8 +174,6 @@ def run_monitor(args: argparse.Namespace, graph: NodeGraph, requested: threading
         for handle in files:
             handle.close()
         code = finish(code)
-        sys.stdout.flush()
-        sys.stderr.flush()
         with exit_after(TEARDOWN_GRACE, code):
             executor.shutdown()
             node.destroy_node()

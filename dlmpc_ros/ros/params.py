@@ -176,8 +176,6 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
             if rclpy.ok():  # the last messages reach the readers before the node goes
                 wait_for_acknowledgements(node)
         # the work is done: a middleware teardown that hangs must not keep the process
-        sys.stdout.flush()
-        sys.stderr.flush()
         with exit_after(TEARDOWN_GRACE, 1 if sys.exc_info()[0] is not None else code):
             if executor is not None:
                 executor.shutdown()

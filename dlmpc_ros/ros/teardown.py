@@ -53,11 +53,14 @@ class _ITimerSpec(ctypes.Structure):
 @contextmanager
 def exit_after(seconds: float, code: int) -> Iterator[bool]:
     """Within the block, end this process with exit status ``code`` (0-255) once
-    ``seconds`` have passed; no cleanup runs (as ``os._exit``). Yields whether the
-    deadline is armed; leaving the block disarms it."""
+    ``seconds`` have passed; no cleanup runs (as ``os._exit``), so Python's standard
+    output and error are flushed on entry. Yields whether the deadline is armed; leaving
+    the block disarms it."""
     if not 0 <= code <= 255 or not seconds > 0:
         raise ValueError(f'exit_after needs seconds > 0 and a code in 0-255, got '
                          f'{seconds}, {code}')
+    sys.stdout.flush()
+    sys.stderr.flush()
     timer = _arm(seconds, code) if sys.platform.startswith('linux') else None
     try:
         yield timer is not None

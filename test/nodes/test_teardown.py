@@ -5,6 +5,7 @@ Fast DDS's participant destruction once spun for good while holding the GIL
 ``ctypes.PyDLL``) stands in for it here.
 """
 
+import os
 import subprocess
 import sys
 import time
@@ -16,6 +17,7 @@ from dlmpc_ros.ros.teardown import exit_after
 HELD = """
 import ctypes, sys
 from dlmpc_ros.ros.teardown import exit_after
+print('printed before', end='')  # buffered: a pipe
 with exit_after(float(sys.argv[1]), int(sys.argv[2])) as armed:
     assert armed
     ctypes.PyDLL(None).sleep(int(sys.argv[3]))  # a C call that keeps the GIL
@@ -29,8 +31,10 @@ def _run(seconds: float, code: int, hold: int, *after: int) -> tuple[int, float]
     start = time.monotonic()
     done = subprocess.run([sys.executable, '-c', HELD, str(seconds), str(code), str(hold),
                            *map(str, after)],
-                          timeout=60, capture_output=True, text=True)
+                          timeout=60, capture_output=True, text=True,
+                          env={k: v for k, v in os.environ.items() if k != 'PYTHONUNBUFFERED'})
     assert not done.stderr, done.stderr
+    assert done.stdout == 'printed before', done.stdout  # flushed, though _exit skips it
     return done.returncode, time.monotonic() - start
 
 
