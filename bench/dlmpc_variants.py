@@ -17,7 +17,9 @@ Usage::
 {"planner": null}, "no twin": {"tracking": {"mirror": false}}, "noisy":
 {"measurement_noise": 0.01}, "other models": {"models_dir": "out/models"}}``
 (``tracking``, ``acquisition`` and ``planner`` take the fields of their configs;
-``measurement_noise`` is the run's relative noise on the measured E and M;
+``measurement_noise`` is the run's relative noise on the measured E and M, and
+``measurement_round_trips`` how many of a period's last round trips its measurement
+averages;
 ``models_dir`` a models folder, environment variables such as ``${OUT}`` expanded).
 With ``--lock-starts N`` each variant runs the lock benchmark instead (the first N cold
 starts of ``dlmpc-evaluate --benchmark lock`` on every plant, in blocks of 10) and the
@@ -89,8 +91,10 @@ def plant_and_envelope(plant: str, models_dir: Path) -> tuple[dict, dict]:
 
 
 def variant_config(overrides: dict, models_dir: str,
-                   max_step: float) -> tuple[DLMPCConfig, float, Path]:
-    """A variant's ``(DLMPCConfig, measurement noise, models folder)``."""
+                   max_step: float) -> tuple[DLMPCConfig, dict, Path]:
+    """A variant's ``(DLMPCConfig, run settings, models folder)``; the run settings are
+    :class:`~dlmpc_ros.evaluation.runs.RunSpec` fields (``measurement_noise``,
+    ``measurement_round_trips``)."""
     from dlmpc_ros.control.acquisition import AcquisitionConfig
     from dlmpc_ros.control.dlmpc_config import DLMPCConfig
     from dlmpc_ros.control.limits import AngleLimits
@@ -98,13 +102,14 @@ def variant_config(overrides: dict, models_dir: str,
     from dlmpc_ros.control.tracking import TrackingConfig
 
     overrides = dict(overrides)
-    noise = float(overrides.pop('measurement_noise', 0.0))  # a run setting, not DLMPCConfig
+    run = {key: overrides.pop(key) for key in ('measurement_noise', 'measurement_round_trips')
+           if key in overrides}  # run settings, not DLMPCConfig
     models = Path(os.path.expandvars(overrides.pop('models_dir', models_dir)))
     for key, kind in (('tracking', TrackingConfig), ('acquisition', AcquisitionConfig),
                       ('planner', PlannerConfig)):
         if isinstance(overrides.get(key), dict):  # from JSON: the config's fields
             overrides[key] = kind(**overrides[key])
-    return DLMPCConfig(limits=AngleLimits(max_step=max_step), **overrides), noise, models
+    return DLMPCConfig(limits=AngleLimits(max_step=max_step), **overrides), run, models
 
 
 def run_one(job: VariantRun) -> dict:
@@ -116,8 +121,8 @@ def run_one(job: VariantRun) -> dict:
 
     plant, envelope = plant_and_envelope(job.plant, Path(job.models_dir))
     spec = RunSpec(job.scenario, job.seed, 'dlmpc', round_trips=job.round_trips, plant=plant)
-    config, noise, models = variant_config(job.overrides, job.models_dir, spec.max_step)
-    spec = replace(spec, measurement_noise=noise)
+    config, run, models = variant_config(job.overrides, job.models_dir, spec.max_step)
+    spec = replace(spec, **run)
     controller = load_dlmpc(models, config)
     started = time.monotonic()
     record = run_fast(spec, models, controller)
@@ -138,9 +143,9 @@ def run_lock_block(job: LockBlock) -> dict:
 
     plant, envelope = plant_and_envelope(job.plant, Path(job.models_dir))
     spec = LockSpec('dlmpc', plant=plant)
-    config, noise, models = variant_config(job.overrides, job.models_dir, spec.max_step)
-    if noise:
-        raise ValueError('the lock benchmark runs without measurement noise')
+    config, run, models = variant_config(job.overrides, job.models_dir, spec.max_step)
+    if run:
+        raise ValueError(f'the lock benchmark runs without run settings, got {run}')
     starts = run_starts(LockTask(spec, job.indices, str(models), envelope['K'],
                                  envelope['O_star'], config))
     return {'variant': job.variant, 'plant': job.plant, 'starts': starts}

@@ -35,6 +35,7 @@ import numpy as np
 
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.control.factory import CONTROLLERS
+from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.drift import SCENARIOS, make_scenario, parse_settings
 from dlmpc_ros.core.plants import NOMINAL, PHYSICS_FIELDS, parse_plant, plant_parameters
@@ -86,6 +87,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         '%(default)s); leave out laser_sim to run against a hardware driver')
     p.add_argument('--period', type=int, default=10,
                    help='control period P in round trips (default: %(default)s)')
+    p.add_argument('--measurement-round-trips', type=int, default=MEASUREMENT_ROUND_TRIPS,
+                   metavar='N',
+                   help="the estimator and controller read each period's E and M as the "
+                        'mean of its last N round trips at its angles (default: '
+                        "%(default)s; more divide a detector's noise)")
     p.add_argument('--lockstep', action='store_true',
                    help='the simulator waits for each command and K (reproducible runs)')
     p.add_argument('--initial-angles', metavar='A1,A2,A3,AP',
@@ -180,6 +186,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         p.error(str(err))
     if args.rate < 0 or args.round_trips < 0 or args.period < 1:
         p.error('--rate and --round-trips must be >= 0, --period >= 1')
+    if args.measurement_round_trips < 1:
+        p.error('--measurement-round-trips must be >= 1')
     return args
 
 
@@ -241,7 +249,8 @@ def build_graph(args: argparse.Namespace, env: dict[str, str], log_dir: Path) ->
         elif name == 'drift_injector':
             overrides = {'scenario': args.scenario, **args.scenario_settings}
         elif name in ('vae_estimator', 'mpc_controller', 'baseline_controller'):
-            overrides = {'period': args.period}
+            overrides = {'period': args.period,
+                         'measurement_round_trips': args.measurement_round_trips}
             if args.models_dir is not None:
                 overrides['models_dir'] = str(args.models_dir.resolve())
             if name == 'mpc_controller' and args.controller == 'explore':

@@ -40,6 +40,7 @@ import numpy as np
 
 from dlmpc_ros.control.factory import CONTROLLERS
 from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
 from dlmpc_ros.core.drift import DEFAULTS, parse_settings
 from dlmpc_ros.evaluation.figures import plot_surrogate, plot_tracking
 from dlmpc_ros.evaluation.presets import SCENARIOS, preset_settings
@@ -75,6 +76,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument('--measurement-noise', type=float, default=0.0, metavar='SIGMA',
                    help='fast mode: relative Gaussian noise on the E and M the estimator '
                         'and controller see (the record keeps the true values)')
+    p.add_argument('--measurement-round-trips', type=int, default=MEASUREMENT_ROUND_TRIPS,
+                   metavar='N',
+                   help="the estimator and controller read each period's E and M as the "
+                        'mean of its last N round trips at its angles (default: %(default)s)')
     p.add_argument('--fast', action='store_true',
                    help='run the core objects in one process instead of the node graph')
     p.add_argument('--free-run', action='store_true',
@@ -124,6 +129,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                 'laser node as it is)')
     if not 0 <= args.measurement_noise < 1:
         p.error('--measurement-noise must be in [0, 1)')
+    if args.measurement_round_trips < 1:
+        p.error('--measurement-round-trips must be >= 1')
     if args.bag and (args.scenario or args.controller or args.seed or args.fast
                      or args.plant or args.plant_family):
         p.error('--bag evaluates recorded runs; it takes no --scenario, --controller, '
@@ -153,7 +160,8 @@ def run_specs(args: argparse.Namespace, plant: dict | None = None) -> list[RunSp
     """The runs the arguments ask for on one plant: scenarios x seeds x controllers."""
     mode = 'fast' if args.fast else ('graph-free-run' if args.free_run else 'graph-lockstep')
     return [RunSpec(scenario, seed, controller, args.settings[scenario], args.round_trips,
-                    args.period, args.max_step, args.measurement_noise, mode, dict(plant or {}))
+                    args.period, args.max_step, args.measurement_noise, mode, dict(plant or {}),
+                    measurement_round_trips=args.measurement_round_trips)
             for scenario, seed, controller in itertools.product(args.scenario, args.seed,
                                                                 args.controller)]
 

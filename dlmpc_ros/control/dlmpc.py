@@ -1,6 +1,7 @@
 """The DL-MPC controller (paper section 3D): a supervisor over its modes.
 
-Each control period it receives the latest measurement ``(E, M, alpha[4])`` and the
+Each control period it receives the period's measurement ``(E, M, alpha[4])``
+(:mod:`~dlmpc_ros.control.period_measurement`) and the
 estimator's K surrogate for it (the VAE, run by the caller: the estimator node or
 :class:`~dlmpc_ros.control.estimator.SurrogateEstimator`), and returns the angles for
 the next period. The supervisor asks its modes (:mod:`~dlmpc_ros.control.modes`) in

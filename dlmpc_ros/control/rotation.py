@@ -28,9 +28,12 @@ class CurveRotation:
     values, ``limit`` [rad] bounds |theta|.
     """
 
-    def __init__(self, low: float, high: float, knots: int, limit: float) -> None:
-        if not (np.isfinite([low, high]).all() and low < high and knots >= 2 and limit > 0):
-            raise ValueError('need finite low < high, knots >= 2 and limit > 0')
+    def __init__(self, low: float, high: float, knots: int, limit: float,
+                 spread: float = 0.0) -> None:
+        if not (np.isfinite([low, high]).all() and low < high and knots >= 2 and limit > 0
+                and spread >= 0):
+            raise ValueError('need finite low < high, knots >= 2, limit > 0 and spread >= 0')
+        self.spread = float(spread)
         self.knots = np.linspace(low, high, knots)
         self.values = np.zeros(knots)
         self.limit = float(limit)
@@ -48,13 +51,19 @@ class CurveRotation:
     def move(self, u: float, delta: float) -> None:
         """Change theta(u) by ``delta`` [rad], through the two knots around ``u`` (in
         proportion to their weights, so that theta(u) itself moves by ``delta``), within
-        +-limit."""
+        +-limit. With ``spread`` > 0 every knot first moves by ``delta`` x exp(-(knot -
+        u)^2 / (2 spread^2)) and the two knots around ``u`` then by what theta(u) still
+        lacks of ``delta``."""
         u = float(np.clip(u, self.knots[0], self.knots[-1]))
         right = int(np.clip(np.searchsorted(self.knots, u), 1, self.knots.size - 1))
         w_right = (u - self.knots[right - 1]) / (self.knots[right] - self.knots[right - 1])
         weights = np.array([1.0 - w_right, w_right])
         change = delta * weights / float(np.sum(weights ** 2))
         index = [right - 1, right]
+        if self.spread > 0:  # the whole curve, and the two knots the rest of delta at u
+            shared = delta * np.exp(-0.5 * ((self.knots - u) / self.spread) ** 2)
+            self.values = np.clip(self.values + shared, -self.limit, self.limit)
+            change = change * (1.0 - float(np.interp(u, self.knots, shared)) / delta)
         self.values[index] = np.clip(self.values[index] + change, -self.limit, self.limit)
         self.updates += 1
 

@@ -212,6 +212,10 @@ class TrackingConfig:
     """Points along the curve that carry the learned rotation."""
     rotation_limit: float = 1.0
     """Largest learned rotation [rad]."""
+    rotation_spread: float = 0.0
+    """A turn planned at one point of the curve also turns the rest of it, by the turn x
+    exp(-(distance / rotation_spread)^2 / 2) (K units; 0: only the two knots around the
+    point)."""
 
     def __post_init__(self) -> None:
         if not (self.dither > 0 and 0 < self.min_step <= self.step <= self.max_step
@@ -253,9 +257,10 @@ class TrackingConfig:
             raise ValueError('need mirror_margin >= 0, 0 < turn_step <= pi/2, free_turn >= 0, '
                              '0 < turn_guard <= 1, turn_cooldown >= 1, verify >= 1, '
                              'branch_gain > -1 and 0 <= trial_drop < 1')
-        if not (self.plan_every >= 1 and self.rotation_knots >= 2 and self.rotation_limit > 0):
-            raise ValueError('need plan_every >= 1, rotation_knots >= 2 and '
-                             'rotation_limit > 0')
+        if not (self.plan_every >= 1 and self.rotation_knots >= 2 and self.rotation_limit > 0
+                and self.rotation_spread >= 0):
+            raise ValueError('need plan_every >= 1, rotation_knots >= 2, rotation_limit > 0 '
+                             'and rotation_spread >= 0')
 
 
 class CurveTracker:
@@ -294,7 +299,8 @@ class CurveTracker:
         #: O of the latest ``turn_reference`` periods (the O before a turn is their median)
         self._latest: deque[float] = deque(maxlen=self.config.turn_reference)
         self.rotation = CurveRotation(self.grid[0], self.grid[-1],
-                                      self.config.rotation_knots, self.config.rotation_limit)
+                                      self.config.rotation_knots, self.config.rotation_limit,
+                                      self.config.rotation_spread)
         #: ``(u, theta, noise) -> further turn [rad]`` asked every ``plan_every`` blocks
         #: (None: the curve is never turned)
         self.plan_rotation: Callable[[float, float, float], float] | None = None

@@ -3,7 +3,9 @@ stepped in the same order as the node graph in lockstep.
 
 Round trip r runs with K = scenario(r) and the angles commanded after round trip r - 1.
 After every round trip r with r % period == 0 the measurement ``(E, M, alpha[4])`` of
-round trip r goes to the estimator and the controller, whose angles apply from r + 1.
+round trip r (E and M averaged over its last round trips at its angles:
+:mod:`dlmpc_ros.control.period_measurement`) goes to the estimator and the controller,
+whose angles apply from r + 1.
 :func:`replay_decisions` feeds a recorded run's measurements to a controller again.
 """
 
@@ -15,6 +17,7 @@ from collections.abc import Callable
 import numpy as np
 
 from dlmpc_ros.control.estimator import SurrogateEstimator
+from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS, PeriodMeasurement
 from dlmpc_ros.control.step import Controller, ControlStep
 from dlmpc_ros.core.cavity import Cavity
 from dlmpc_ros.core.config import CavityConfig
@@ -34,7 +37,8 @@ def run_closed_loop(controller: Controller, scenario: Scenario, round_trips: int
                     meta: dict | None = None,
                     progress: Callable[[int], None] | None = None,
                     measurement_noise: float = 0.0, noise_seed: int = 0,
-                    initial: str = 'sech', initial_seed: int | None = None) -> RunRecord:
+                    initial: str = 'sech', initial_seed: int | None = None,
+                    measurement_round_trips: int = MEASUREMENT_ROUND_TRIPS) -> RunRecord:
     """Run ``round_trips`` round trips of the closed loop; returns the record.
 
     ``estimator`` (optional) supplies the surrogate the controller gets with each
@@ -45,11 +49,16 @@ def run_closed_loop(controller: Controller, scenario: Scenario, round_trips: int
     noise; seeded by ``noise_seed``); the record keeps the laser's true values.
     ``initial`` is the laser's initial field (the spec's ``'sech'`` pulse, or ``'noise'``,
     seeded by ``initial_seed``: a cold start from spontaneous emission).
+    ``measurement_round_trips`` n: the measurement is the mean E and M of the period's
+    last n round trips that ran at its angles
+    (:class:`~dlmpc_ros.control.period_measurement.PeriodMeasurement`), each round trip
+    with its own noise.
     """
     if round_trips < 1 or period < 1:
         raise ValueError('round_trips and period must be >= 1')
     if not 0 <= measurement_noise < 1:
         raise ValueError(f'measurement_noise must be in [0, 1), got {measurement_noise}')
+    periods = PeriodMeasurement(period, measurement_round_trips)
     noise = np.random.default_rng(noise_seed)
     angles = np.zeros(4) if initial_angles is None else np.asarray(initial_angles, float)
     cavity = Cavity(cavity_config, batch=1, angles=angles, birefringence=scenario(1),
@@ -67,11 +76,14 @@ def run_closed_loop(controller: Controller, scenario: Scenario, round_trips: int
             continue
         e, m, o = float(result.E[0]), float(result.M[0]), float(result.O[0])
         builder.add_round_trip(r, k, e, m, o, applied)
-        if r % period:
+        if not periods.wanted(r):
             continue
-        measurement = np.array([e, m, *applied])
+        state = np.array([e, m, *applied])
         if measurement_noise:
-            measurement[:2] *= 1.0 + measurement_noise * noise.standard_normal(2)
+            state[:2] *= 1.0 + measurement_noise * noise.standard_normal(2)
+        measurement = periods.add(r, state)
+        if measurement is None:
+            continue
         started = time.perf_counter()
         surrogate = None if estimator is None else estimator.update(measurement)[0]
         estimate_ms = 1e3 * (time.perf_counter() - started)
@@ -90,14 +102,23 @@ def replay_decisions(controller: Controller, record: RunRecord,
     """The controller's decisions on a recorded run's measurements, in order.
 
     Every control period of ``record`` gives the measurement ``(E, M, alpha[4])`` of its
-    round trip (the angles that round trip ran with), as :func:`run_closed_loop` gave it;
-    nothing else of the run (no K, no simulator) is used. A controller that reads only
-    its measurements decides exactly as it did in the run.
+    round trips (the mean over the last ``meta['measurement_round_trips']`` at its
+    angles, 1 if the record does not say), as :func:`run_closed_loop` gave it, from the
+    recorded E, M and angles of every round trip; nothing else of the run (no K, no
+    simulator) is used. A noiseless run's controller that reads only its measurements
+    decides exactly as it did in the run.
     """
-    index = np.searchsorted(record.round_trip, record.control_round_trip)
+    period = int(record.meta.get('period', 10))
+    periods = PeriodMeasurement(period, int(record.meta.get('measurement_round_trips', 1)))
+    controls = set(record.control_round_trip.tolist())
     steps = []
-    for i in index:
-        measurement = np.array([record.E[i], record.M[i], *record.angles[i]])
+    for r, e, m, angles in zip(record.round_trip.tolist(), record.E, record.M,
+                               record.angles):
+        if not (np.isfinite(e) and periods.wanted(r)):
+            continue
+        measurement = periods.add(r, np.array([e, m, *angles]))
+        if measurement is None or r not in controls:
+            continue
         surrogate = None if estimator is None else estimator.update(measurement)[0]
         steps.append(controller.step(measurement, surrogate))
     return steps

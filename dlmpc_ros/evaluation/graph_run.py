@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
 from dlmpc_ros.control.step import MODES
 from dlmpc_ros.evaluation.record import RunRecord
 from dlmpc_ros.recording.run_csv import read_decisions_csv, read_run_csv
@@ -38,7 +39,8 @@ def run_graph(out_dir: Path, controller: str, scenario: str, settings: list[str]
               round_trips: int, period: int, initial_angles: np.ndarray,
               domain_id: int, lockstep: bool = True, models_dir: Path | None = None,
               meta: dict | None = None, record_bag: Path | None = None,
-              plant: list[str] = ()) -> RunRecord:
+              plant: list[str] = (),
+              measurement_round_trips: int = MEASUREMENT_ROUND_TRIPS) -> RunRecord:
     """Run the bringup for one closed loop (recording a bag to ``record_bag`` if given;
     ``plant``: the simulator's ``KEY=VALUE`` plant settings); raises RuntimeError if it
     fails."""
@@ -48,7 +50,8 @@ def run_graph(out_dir: Path, controller: str, scenario: str, settings: list[str]
            '--scenario', scenario, '--round-trips', str(round_trips), '--period', str(period),
            '--initial-angles=' + ','.join(repr(float(a)) for a in initial_angles),
            '--csv', str(csv_path), '--log-dir', str(out_dir / 'logs'),
-           '--domain-id', str(domain_id)]
+           '--domain-id', str(domain_id),
+           '--measurement-round-trips', str(measurement_round_trips)]
     for item in settings:
         cmd += ['--scenario-param', item]
     for item in plant:

@@ -10,6 +10,7 @@ from pathlib import Path
 from dlmpc_ros.control.estimator import SurrogateEstimator
 from dlmpc_ros.control.factory import load_estimator, make_controller
 from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
 from dlmpc_ros.control.step import Controller
 from dlmpc_ros.core import checks
 from dlmpc_ros.core.config import CavityConfig
@@ -48,6 +49,9 @@ class RunSpec:
     plant: dict = field(default_factory=dict)
     """Physical parameters of the simulated cavity that differ from the nominal one
     (:mod:`dlmpc_ros.core.plants`); they reach the simulator, never the controller."""
+    measurement_round_trips: int = MEASUREMENT_ROUND_TRIPS
+    """The estimator and controller see the mean E and M of the period's last this many
+    round trips at its angles, each with its own measurement noise."""
 
     def __post_init__(self) -> None:
         if self.scenario not in PRESETS:
@@ -55,7 +59,7 @@ class RunSpec:
                              f'got {self.scenario!r}')
         if self.mode not in MODES:
             raise ValueError(f'RunSpec.mode must be one of {MODES}, got {self.mode!r}')
-        checks.counts(self, 'round_trips', 'period')
+        checks.counts(self, 'round_trips', 'period', 'measurement_round_trips')
         checks.positive(self, 'max_step')
         checks.non_negative(self, 'measurement_noise')
         unknown = set(self.plant) - set(PHYSICS_FIELDS)
@@ -83,6 +87,7 @@ class RunSpec:
                 'round_trips': self.round_trips, 'period': self.period, 'mode': self.mode,
                 'initial_angles': random_initial_angles(self.seed).tolist(),
                 'measurement_noise': self.measurement_noise,
+                'measurement_round_trips': self.measurement_round_trips,
                 'plant': plant_parameters(self.cavity),
                 'plant_fingerprint': plant_fingerprint(self.cavity)}
 
@@ -103,7 +108,8 @@ def run_fast(spec: RunSpec, models_dir: Path, controller: Controller | None = No
     return run_closed_loop(controller, scenario, spec.round_trips, spec.period,
                            random_initial_angles(spec.seed), cavity_config=spec.cavity,
                            estimator=estimator, meta=spec.meta(models_dir), progress=progress,
-                           measurement_noise=spec.measurement_noise, noise_seed=spec.seed)
+                           measurement_noise=spec.measurement_noise, noise_seed=spec.seed,
+                           measurement_round_trips=spec.measurement_round_trips)
 
 
 def run_spec(spec: RunSpec, models_dir: Path, run_dir: Path, domain_id: int = 88,
@@ -119,7 +125,8 @@ def run_spec(spec: RunSpec, models_dir: Path, run_dir: Path, domain_id: int = 88
                      spec.round_trips, spec.period, random_initial_angles(spec.seed),
                      domain_id, lockstep=spec.mode == 'graph-lockstep',
                      models_dir=models_dir, meta=spec.meta(models_dir),
-                     plant=[f'{k}={v!r}' for k, v in spec.plant.items()])
+                     plant=[f'{k}={v!r}' for k, v in spec.plant.items()],
+                     measurement_round_trips=spec.measurement_round_trips)
 
 
 def setting_strings(settings: dict[str, object]) -> list[str]:

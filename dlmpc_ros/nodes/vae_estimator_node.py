@@ -1,7 +1,9 @@
 """vae_estimator: the VAE's K surrogate from what is measured, once per control period.
 
 Subscribes ``/laser/state``; for every round trip r with r % period == 0 it feeds the
-measurement ``(E, M, alpha[4])`` to the VAE encoder and publishes
+measurement ``(E, M, alpha[4])`` (the controller's: E and M averaged over the last
+``measurement_round_trips`` round trips at the period's angles) to the VAE encoder and
+publishes
 ``/estimator/birefringence`` ``[r, surrogate, latency_ms, latent mean...]``. The
 surrogate is a coordinate of the latent space that tracks K, not K in K's units.
 """
@@ -18,27 +20,31 @@ from std_msgs.msg import Float64MultiArray
 
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.control.factory import load_estimator
+from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
 from dlmpc_ros.health import CounterWindow, Findings, Health
 from dlmpc_ros.learning.model_files import ModelFileError
 from dlmpc_ros.paths import models_dir
 from dlmpc_ros.ros import params
+from dlmpc_ros.ros.controller_base import (MEASUREMENT_ROUND_TRIPS_DESCRIPTION,
+                                           period_measurement_from)
 from dlmpc_ros.ros.diagnostics import DiagnosticsPublisher
 from dlmpc_ros.ros.io import QOS, vector_message
 
-DEFAULTS: dict[str, object] = {'period': 10, 'models_dir': ''}
+DEFAULTS: dict[str, object] = {'period': 10, 'models_dir': '',
+                               'measurement_round_trips': MEASUREMENT_ROUND_TRIPS}
 DESCRIPTIONS = {'period': 'control period P [round trips]: one estimate per P round trips',
                 'models_dir': 'directory holding vae_encoder.npz (empty: the installed '
-                              'models/)'}
+                              'models/)',
+                'measurement_round_trips': MEASUREMENT_ROUND_TRIPS_DESCRIPTION}
 
 
 class VAEEstimatorNode(Node):
     def __init__(self) -> None:
         super().__init__('vae_estimator')
         values = params.declare(self, DEFAULTS, DESCRIPTIONS, frozenset(DEFAULTS),
-                                {'period': (1, 1_000_000)})
-        self.period = values['period']
-        if not (isinstance(self.period, int) and self.period >= 1):
-            raise params.StartupError(f'period must be an integer >= 1, got {self.period}')
+                                {'period': (1, 1_000_000),
+                                 'measurement_round_trips': (1, 1_000_000)})
+        self.periods = period_measurement_from(values)
         try:
             self.estimator = load_estimator(models_dir(values['models_dir']))
         except (ModelFileError, FileNotFoundError) as err:
@@ -61,10 +67,12 @@ class VAEEstimatorNode(Node):
             return
         round_trip = int(msg.data[0])
         self._last_state = time.monotonic()
-        if round_trip % self.period:
+        if not self.periods.wanted(round_trip):
             return
         started = time.perf_counter()
-        measurement = np.r_[msg.data[1:3], msg.data[6:10]]
+        measurement = self.periods.add(round_trip, np.r_[msg.data[1:3], msg.data[6:10]])
+        if measurement is None:
+            return
         surrogate, latent = self.estimator.update(measurement)
         if not (np.isfinite(surrogate) and np.isfinite(latent).all()):
             self._warn('nonfinite', f'estimate at round trip {round_trip} is not finite; '

@@ -1,6 +1,8 @@
 """What both controller nodes share: one decision per control period of /laser/state.
 
-A state message whose round trip r has r % period == 0 becomes the pending measurement.
+A state message whose round trip r has r % period == 0 becomes the pending measurement:
+its angles and the mean E and M of the last ``measurement_round_trips`` states at those
+angles (:class:`~dlmpc_ros.control.period_measurement.PeriodMeasurement`).
 A node that uses the estimator acts once the estimate of the same round trip arrives, or
 after ``estimator_timeout`` seconds without it (the controller then gets no surrogate and
 says so on its status, ``estimator_age`` = periods since the last estimate). A period is
@@ -21,16 +23,23 @@ from std_msgs.msg import Float64MultiArray
 
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS, PeriodMeasurement
 from dlmpc_ros.control.step import Controller, ControlStep
 from dlmpc_ros.health import ERROR, WARN, CounterWindow, Findings, Health, controller_health
 from dlmpc_ros.ros import params
 from dlmpc_ros.ros.diagnostics import DiagnosticsPublisher
 from dlmpc_ros.ros.io import QOS, vector_message
 
+#: The ``measurement_round_trips`` parameter, which the estimator node shares.
+MEASUREMENT_ROUND_TRIPS_DESCRIPTION = (
+    "a period's measurement is the mean E and M of the last this many round trips at its "
+    'angles (1: its own round trip only; more divide a detector\'s noise)')
+
 COMMON_DEFAULTS: dict[str, object] = {
     'period': 10, 'angle_low': AngleLimits.low, 'angle_high': AngleLimits.high,
     'max_step': AngleLimits.max_step,
     'models_dir': '', 'estimator_timeout': 0.5,
+    'measurement_round_trips': MEASUREMENT_ROUND_TRIPS,
 }
 COMMON_DESCRIPTIONS = {
     'period': 'control period P [round trips]: one decision per P round trips',
@@ -40,13 +49,24 @@ COMMON_DESCRIPTIONS = {
     'models_dir': 'directory of the model files (empty: the installed models/)',
     'estimator_timeout': 'seconds to wait for the estimate of a period before acting '
                          'without it',
+    'measurement_round_trips': MEASUREMENT_ROUND_TRIPS_DESCRIPTION,
 }
 
 #: Ranges (``ros2 param describe`` shows them; rclpy refuses values outside).
 COMMON_RANGES: dict[str, tuple[float, float]] = {
     'period': (1, 1_000_000), 'angle_low': (-1e3, 1e3), 'angle_high': (-1e3, 1e3),
     'max_step': (1e-9, 1e3), 'estimator_timeout': (1e-3, 3600.0),
+    'measurement_round_trips': (1, 1_000_000),
 }
+
+
+def period_measurement_from(values: dict) -> PeriodMeasurement:
+    """The node's :class:`PeriodMeasurement` from its ``period`` and
+    ``measurement_round_trips`` parameters; StartupError naming the problem."""
+    try:
+        return PeriodMeasurement(values['period'], values['measurement_round_trips'])
+    except ValueError as err:
+        raise params.StartupError(str(err)) from None
 
 
 def limits_from(values: dict) -> AngleLimits:
@@ -75,9 +95,11 @@ class ControllerNodeBase(Node):
                                      {**COMMON_RANGES, **(ranges or {})})
         self.limits = limits_from(self.values)
         self.period = int(self.values['period'])
+        self._periods = period_measurement_from(self.values)
         self.controller: Controller | None = None
         self._warn = itf.RateLimitedLog(self.get_logger().warning)
-        self._pending: np.ndarray | None = None
+        self._pending: np.ndarray | None = None        # the period's state message
+        self._pending_measurement = np.zeros(6)        # and its measurement
         self._pending_since = 0.0
         self._estimates: dict[int, float] = {}
         self._last_estimate_round_trip: int | None = None
@@ -120,7 +142,10 @@ class ControllerNodeBase(Node):
             return None
         self._last_state = time.monotonic()
         round_trip = int(msg.data[0])
-        if round_trip % self.period or round_trip == self._last_acted:
+        if round_trip == self._last_acted or not self._periods.wanted(round_trip):
+            return None
+        measurement = self._periods.add(round_trip, np.r_[msg.data[1:3], msg.data[6:10]])
+        if measurement is None:
             return None
         if self._pending is not None:
             if round_trip == int(self._pending[0]):
@@ -128,6 +153,7 @@ class ControllerNodeBase(Node):
             self._act(None, why="before the next period's state")  # answer it now
         self._pending_since = self.get_clock().now().nanoseconds * 1e-9
         self._pending = np.array(msg.data, float)
+        self._pending_measurement = measurement
         self._try_act()
         return None
 
@@ -181,7 +207,7 @@ class ControllerNodeBase(Node):
         state, self._pending = self._pending, None
         round_trip = int(state[0])
         self._last_acted = round_trip
-        measurement = np.r_[state[1:3], state[6:10]]
+        measurement = self._pending_measurement
         self.before_step(state)
         step: ControlStep = self.controller.step(measurement, surrogate)
         if not np.isfinite(step.angles).all():  # never command a non-finite angle

@@ -23,8 +23,24 @@ def test_a_move_turns_the_rotation_at_its_point_by_exactly_that_much():
     assert rotation(9.0) == rotation(0.3)                    # clipped to the range
 
 
+def test_a_spread_move_turns_the_rest_of_the_curve_less_with_distance():
+    rotation = CurveRotation(-0.3, 0.3, knots=7, limit=1.0, spread=0.1)
+    rotation.move(-0.2, 0.1)            # on a knot
+    assert rotation(-0.2) == pytest.approx(0.1)
+    assert rotation(-0.1) == pytest.approx(0.1 * np.exp(-0.5))
+    assert rotation(-0.3) == pytest.approx(0.1 * np.exp(-0.5))
+    assert rotation(0.3) == pytest.approx(0.1 * np.exp(-12.5))
+    assert np.all(np.diff(rotation.values[1:]) < 0)       # less the farther from -0.2
+    before = rotation(0.05)
+    rotation.move(0.05, 0.1)            # between knots: theta(u) moves by exactly delta
+    assert rotation(0.05) == pytest.approx(before + 0.1)
+    rotation.move(0.05, -0.1)
+    rotation.move(-0.2, -0.1)           # the undo takes all of it back
+    np.testing.assert_allclose(rotation.values, 0.0, atol=1e-15)
+
+
 @pytest.mark.parametrize('bad', [dict(low=0.3, high=-0.3), dict(knots=1), dict(limit=0.0),
-                                 dict(low=np.nan)])
+                                 dict(low=np.nan), dict(spread=-0.1)])
 def test_bad_rotation_settings_are_rejected(bad):
     args = {'low': -0.3, 'high': 0.3, 'knots': 5, 'limit': 1.0, **bad}
     with pytest.raises(ValueError):

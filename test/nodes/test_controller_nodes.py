@@ -84,6 +84,25 @@ def test_estimator_publishes_one_finite_estimate_per_period_and_drops_bad_states
     assert 'dropped a message on /laser/state' in node.output()
 
 
+def test_estimator_reads_the_mean_of_the_periods_last_round_trips(ros_env, tmp_path, probe):
+    from dlmpc_ros.control.factory import load_estimator
+    from dlmpc_ros.paths import models_dir
+    estimates = probe.listen(itf.TOPIC_ESTIMATE)
+    node = _start(ESTIMATOR, ros_env, tmp_path, 'period:=5', 'measurement_round_trips:=3')
+    try:
+        probe.wait_matched(itf.TOPIC_STATE)
+        energies = [2.0, 2.5, 3.0, 3.5, 4.0, 2.0, 2.2, 2.4, 2.6, 2.8]
+        for r, e in enumerate(energies, start=1):
+            probe.publish(itf.TOPIC_STATE, _state(r, e=e), itf.STATE_FIELDS)
+        probe.spin_until(lambda: len(estimates) >= 2, 60, '2 estimates')
+    finally:
+        assert node.stop() == 0
+    expected = load_estimator(models_dir())
+    for row, e in zip(estimates, (3.5, 2.6)):  # round trips 3-5 and 8-10
+        surrogate, _ = expected.update(np.array([e, 18.0, *ANGLES]))
+        assert row.data[1] == pytest.approx(surrogate, rel=1e-5)
+
+
 def test_mpc_controller_acts_each_period_holds_without_estimator_and_never_reads_true_k(
         ros_env, tmp_path, probe):
     commands = probe.listen(itf.TOPIC_ANGLES_CMD)
