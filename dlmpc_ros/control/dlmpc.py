@@ -108,6 +108,7 @@ class DLMPCController:
         if self.tracker is not None and response is not None and cfg.planner is not None:
             self.planner = RotationPlanner(response, cfg.planner, turn_correction)
             self.tracker.plan_rotation = self.planner.plan
+            self.tracker.retract_rotation = self.planner.retract
         if target_objective is not None and cfg.acquisition is not None:
             source = (MapScan(self.map_angles, cfg.acquisition.scan_points)
                       if self.tracker is None else

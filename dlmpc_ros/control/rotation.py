@@ -29,13 +29,16 @@ class CurveRotation:
     """
 
     def __init__(self, low: float, high: float, knots: int, limit: float,
-                 spread: float = 0.0) -> None:
+                 spread: float = 0.0, spread_unexplored: bool = False) -> None:
         if not (np.isfinite([low, high]).all() and low < high and knots >= 2 and limit > 0
                 and spread >= 0):
             raise ValueError('need finite low < high, knots >= 2, limit > 0 and spread >= 0')
         self.spread = float(spread)
+        self.spread_unexplored = spread_unexplored
         self.knots = np.linspace(low, high, knots)
         self.values = np.zeros(knots)
+        #: knots a move was planned next to (their own evidence)
+        self.explored = np.zeros(knots, bool)
         self.limit = float(limit)
         self.updates = 0
 
@@ -62,9 +65,12 @@ class CurveRotation:
         index = [right - 1, right]
         if self.spread > 0:  # the whole curve, and the two knots the rest of delta at u
             shared = delta * np.exp(-0.5 * ((self.knots - u) / self.spread) ** 2)
+            if self.spread_unexplored:
+                shared[self.explored] = 0.0
             self.values = np.clip(self.values + shared, -self.limit, self.limit)
             change = change * (1.0 - float(np.interp(u, self.knots, shared)) / delta)
         self.values[index] = np.clip(self.values[index] + change, -self.limit, self.limit)
+        self.explored[index] |= weights > 0
         self.updates += 1
 
 

@@ -158,6 +158,17 @@ class RotationPlanner:
         if np.isfinite(energy) and np.isfinite(kurtosis) and energy > 0 and kurtosis > 0:
             self.recent.append((float(np.log(energy)), float(np.log(kurtosis))))
 
+    def retract(self) -> float:
+        """The last move [rad] if it has not been judged yet (0: none); it is forgotten and
+        counted as undone (the caller takes it back: the laser lost its pulse or fell
+        under its guard before the move could be judged)."""
+        if self._pending is None:
+            return 0.0
+        delta, self._pending = self._pending[0], None
+        self.undone += 1
+        self.recent.clear()
+        return delta
+
     def plan(self, u: float, theta: float, noise: float = 0.0) -> float:
         """The turn [rad] to add to the rotation at curve point ``u`` (0: hold), where
         ``theta`` [rad] is the rotation there and ``noise`` the standard deviation of one

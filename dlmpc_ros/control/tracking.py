@@ -212,6 +212,12 @@ class TrackingConfig:
     """Points along the curve that carry the learned rotation."""
     rotation_limit: float = 1.0
     """Largest learned rotation [rad]."""
+    rotation_spread_unexplored: bool = False
+    """The spread reaches only knots no turn was planned next to yet."""
+    forget_lost_turns: bool = False
+    """A planned turn after which the laser falls under the guard or loses its lock before
+    the planner has judged it (at its next plan) is taken back, in the curve's memory
+    too: otherwise the turn that lost the pulse stays where K will come by again."""
     rotation_spread: float = 0.0
     """A turn planned at one point of the curve also turns the rest of it, by the turn x
     exp(-(distance / rotation_spread)^2 / 2) (K units; 0: only the two knots around the
@@ -300,10 +306,14 @@ class CurveTracker:
         self._latest: deque[float] = deque(maxlen=self.config.turn_reference)
         self.rotation = CurveRotation(self.grid[0], self.grid[-1],
                                       self.config.rotation_knots, self.config.rotation_limit,
-                                      self.config.rotation_spread)
+                                      self.config.rotation_spread,
+                                      self.config.rotation_spread_unexplored)
         #: ``(u, theta, noise) -> further turn [rad]`` asked every ``plan_every`` blocks
         #: (None: the curve is never turned)
         self.plan_rotation: Callable[[float, float, float], float] | None = None
+        #: ``() -> the planner's turn not yet judged [rad]`` (0: none), which it then forgets
+        self.retract_rotation: Callable[[], float] | None = None
+        self._turn_at = 0.0  # the curve point u of the latest planned turn
         self.planned = 0.0
         self._survey_wait = 0
         #: measured O over the curve's O, recent tracking periods (the laser's own scale)
@@ -354,6 +364,7 @@ class CurveTracker:
         self._survey, self._approach = [], []
         self.turner.cancel()
         if self.active:
+            self._forget_unjudged_turn()
             self._leave(failed=self._age <= self.config.settle + self.config.guard_periods)
         self._locked = 0
         self._recent.clear()
@@ -382,6 +393,7 @@ class CurveTracker:
                        and objective >= self.config.guard * self._entry_objective)
             self._low = self._low + 1 if bad else 0
             if self._low >= self.config.guard_periods:
+                self._forget_unjudged_turn()
                 if self._age > self.config.settle + 2 * self.config.block:
                     self._recentre()  # K moved off the estimate: start again on the curve
                 else:
@@ -544,6 +556,15 @@ class CurveTracker:
         self._block_count = 0                # blocks closed since (for the plans)
         self._step, self._last_move = self.config.step, 0.0  # Rprop step and last sign
 
+    def _forget_unjudged_turn(self) -> None:
+        """With ``forget_lost_turns``: take back the planner's latest turn if it has not
+        judged it yet (the laser lost what it had before the next plan)."""
+        if self.config.forget_lost_turns and self.retract_rotation is not None:
+            turn = self.retract_rotation()
+            if turn:
+                self.rotation.move(self._turn_at, -turn)
+                self.planned = -float(turn)
+
     def _leave(self, failed: bool) -> None:
         """Hand back and wait a cooldown (doubled, up to 64 x, after a failed entry)."""
         self.active = False
@@ -604,6 +625,7 @@ class CurveTracker:
             if turn:
                 self.rotation.move(u, turn)
                 self.planned = float(turn)
+                self._turn_at = u
                 self._blocks.clear()  # O moves with the turn: compare blocks after it
 
 

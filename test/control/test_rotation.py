@@ -39,6 +39,19 @@ def test_a_spread_move_turns_the_rest_of_the_curve_less_with_distance():
     np.testing.assert_allclose(rotation.values, 0.0, atol=1e-15)
 
 
+def test_a_spread_into_unexplored_knots_leaves_what_was_learned_there():
+    rotation = CurveRotation(-0.3, 0.3, knots=7, limit=1.0, spread=0.1,
+                             spread_unexplored=True)
+    rotation.move(-0.2, 0.1)
+    assert list(rotation.explored) == [False, True, False, False, False, False, False]
+    assert rotation(-0.1) == pytest.approx(0.1 * np.exp(-0.5))   # a prior where unexplored
+    rotation.move(0.0, -0.05)           # explores the knot at 0
+    assert rotation.explored[3] and rotation(0.0) == pytest.approx(
+        0.1 * np.exp(-2.0) - 0.05)
+    assert rotation(-0.2) == pytest.approx(0.1)                 # its own, untouched
+    assert rotation(-0.1) == pytest.approx(0.1 * np.exp(-0.5) - 0.05 * np.exp(-0.5))
+
+
 @pytest.mark.parametrize('bad', [dict(low=0.3, high=-0.3), dict(knots=1), dict(limit=0.0),
                                  dict(low=np.nan), dict(spread=-0.1)])
 def test_bad_rotation_settings_are_rejected(bad):
@@ -164,3 +177,15 @@ def test_a_calibrated_correction_is_where_the_online_fit_starts_and_what_it_is_p
     np.testing.assert_allclose(batch.coefficients, single.coefficients)
     with pytest.raises(ValueError, match='3 finite'):
         OnlineCorrection(memory=10, prior=np.array([0.0, np.nan, 0.0]))
+
+
+def test_a_move_not_yet_judged_can_be_retracted_once(toy_model):
+    planner = RotationPlanner(toy_model, PlannerConfig(radius=0.05, spread_penalty=0.0))
+    assert planner.retract() == 0.0                       # nothing moved yet
+    planner.observe(np.exp(0.2), np.exp(3.0))
+    turn = planner.plan(-0.1, 0.0)
+    assert turn > 0 and planner.retract() == turn and planner.undone == 1
+    assert planner.retract() == 0.0                       # forgotten: not retracted twice
+    planner.observe(np.exp(0.2), np.exp(3.0))
+    assert planner.plan(-0.1, 0.0) > 0                    # no stale move judged next
+    assert len(planner.correction.moves) == 0
