@@ -29,12 +29,11 @@ class CurveRotation:
     """
 
     def __init__(self, low: float, high: float, knots: int, limit: float,
-                 spread: float = 0.0, spread_unexplored: bool = False) -> None:
+                 spread: float = 0.0) -> None:
         if not (np.isfinite([low, high]).all() and low < high and knots >= 2 and limit > 0
                 and spread >= 0):
             raise ValueError('need finite low < high, knots >= 2, limit > 0 and spread >= 0')
         self.spread = float(spread)
-        self.spread_unexplored = spread_unexplored
         self.knots = np.linspace(low, high, knots)
         self.values = np.zeros(knots)
         #: knots a move was planned next to (their own evidence)
@@ -54,9 +53,10 @@ class CurveRotation:
     def move(self, u: float, delta: float) -> None:
         """Change theta(u) by ``delta`` [rad], through the two knots around ``u`` (in
         proportion to their weights, so that theta(u) itself moves by ``delta``), within
-        +-limit. With ``spread`` > 0 every knot first moves by ``delta`` x exp(-(knot -
-        u)^2 / (2 spread^2)) and the two knots around ``u`` then by what theta(u) still
-        lacks of ``delta``."""
+        +-limit. With ``spread`` > 0 every knot no move was made next to yet (no evidence
+        of its own) first moves by ``delta`` x exp(-(knot - u)^2 / (2 spread^2)), a prior
+        for where K has not been, and the two knots around ``u`` then by what theta(u)
+        still lacks of ``delta``."""
         u = float(np.clip(u, self.knots[0], self.knots[-1]))
         right = int(np.clip(np.searchsorted(self.knots, u), 1, self.knots.size - 1))
         w_right = (u - self.knots[right - 1]) / (self.knots[right] - self.knots[right - 1])
@@ -65,8 +65,7 @@ class CurveRotation:
         index = [right - 1, right]
         if self.spread > 0:  # the whole curve, and the two knots the rest of delta at u
             shared = delta * np.exp(-0.5 * ((self.knots - u) / self.spread) ** 2)
-            if self.spread_unexplored:
-                shared[self.explored] = 0.0
+            shared[self.explored] = 0.0
             self.values = np.clip(self.values + shared, -self.limit, self.limit)
             change = change * (1.0 - float(np.interp(u, self.knots, shared)) / delta)
         self.values[index] = np.clip(self.values[index] + change, -self.limit, self.limit)

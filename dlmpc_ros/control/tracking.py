@@ -212,16 +212,17 @@ class TrackingConfig:
     """Points along the curve that carry the learned rotation."""
     rotation_limit: float = 1.0
     """Largest learned rotation [rad]."""
-    rotation_spread_unexplored: bool = False
-    """The spread reaches only knots no turn was planned next to yet."""
-    forget_lost_turns: bool = False
+    rotation_spread: float = 0.1
+    """A turn planned at one point of the curve also turns the knots no turn was planned
+    next to yet, by the turn x exp(-(distance / rotation_spread)^2 / 2) (K units; 0: only
+    the two knots around the point): what one point learned is the prior where K has not
+    been. Into every knot, turns added up past the predictor's data (-0.87 rad) and a
+    development run lost 0.17. Chosen on the development plants with
+    ``forget_lost_turns`` (``bench/results/rotation_spread.md``)."""
+    forget_lost_turns: bool = True
     """A planned turn after which the laser falls under the guard or loses its lock before
     the planner has judged it (at its next plan) is taken back, in the curve's memory
     too: otherwise the turn that lost the pulse stays where K will come by again."""
-    rotation_spread: float = 0.0
-    """A turn planned at one point of the curve also turns the rest of it, by the turn x
-    exp(-(distance / rotation_spread)^2 / 2) (K units; 0: only the two knots around the
-    point)."""
 
     def __post_init__(self) -> None:
         if not (self.dither > 0 and 0 < self.min_step <= self.step <= self.max_step
@@ -306,8 +307,7 @@ class CurveTracker:
         self._latest: deque[float] = deque(maxlen=self.config.turn_reference)
         self.rotation = CurveRotation(self.grid[0], self.grid[-1],
                                       self.config.rotation_knots, self.config.rotation_limit,
-                                      self.config.rotation_spread,
-                                      self.config.rotation_spread_unexplored)
+                                      self.config.rotation_spread)
         #: ``(u, theta, noise) -> further turn [rad]`` asked every ``plan_every`` blocks
         #: (None: the curve is never turned)
         self.plan_rotation: Callable[[float, float, float], float] | None = None

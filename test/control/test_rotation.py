@@ -23,25 +23,23 @@ def test_a_move_turns_the_rotation_at_its_point_by_exactly_that_much():
     assert rotation(9.0) == rotation(0.3)                    # clipped to the range
 
 
-def test_a_spread_move_turns_the_rest_of_the_curve_less_with_distance():
+def test_a_spread_move_turns_the_unexplored_curve_less_with_distance():
     rotation = CurveRotation(-0.3, 0.3, knots=7, limit=1.0, spread=0.1)
     rotation.move(-0.2, 0.1)            # on a knot
     assert rotation(-0.2) == pytest.approx(0.1)
-    assert rotation(-0.1) == pytest.approx(0.1 * np.exp(-0.5))
     assert rotation(-0.3) == pytest.approx(0.1 * np.exp(-0.5))
+    assert rotation(-0.1) == pytest.approx(0.1 * np.exp(-0.5))
     assert rotation(0.3) == pytest.approx(0.1 * np.exp(-12.5))
     assert np.all(np.diff(rotation.values[1:]) < 0)       # less the farther from -0.2
+    rotation.move(-0.2, -0.1)           # the undo takes all of it back
+    np.testing.assert_allclose(rotation.values, 0.0, atol=1e-15)
     before = rotation(0.05)
     rotation.move(0.05, 0.1)            # between knots: theta(u) moves by exactly delta
     assert rotation(0.05) == pytest.approx(before + 0.1)
-    rotation.move(0.05, -0.1)
-    rotation.move(-0.2, -0.1)           # the undo takes all of it back
-    np.testing.assert_allclose(rotation.values, 0.0, atol=1e-15)
 
 
 def test_a_spread_into_unexplored_knots_leaves_what_was_learned_there():
-    rotation = CurveRotation(-0.3, 0.3, knots=7, limit=1.0, spread=0.1,
-                             spread_unexplored=True)
+    rotation = CurveRotation(-0.3, 0.3, knots=7, limit=1.0, spread=0.1)
     rotation.move(-0.2, 0.1)
     assert list(rotation.explored) == [False, True, False, False, False, False, False]
     assert rotation(-0.1) == pytest.approx(0.1 * np.exp(-0.5))   # a prior where unexplored
@@ -189,3 +187,28 @@ def test_a_move_not_yet_judged_can_be_retracted_once(toy_model):
     planner.observe(np.exp(0.2), np.exp(3.0))
     assert planner.plan(-0.1, 0.0) > 0                    # no stale move judged next
     assert len(planner.correction.moves) == 0
+
+
+@pytest.mark.parametrize('forget', [True, False])
+def test_a_turn_that_loses_the_laser_before_it_is_judged_is_taken_back(toy_model, forget):
+    from dlmpc_ros.control.tracking import CurveTracker, TrackingConfig
+    grid = np.linspace(-0.3, 0.3, 61)
+    curve = np.stack([2 * grid, 0.1 + 0 * grid, -0.2 + grid, 0.3 + 0 * grid], axis=1)
+    config = TrackingConfig(entry_patience=1, settle=2, block=1, plan_every=2, guard=0.8,
+                            guard_periods=2, start=-0.1, forget_lost_turns=forget)
+    tracker = CurveTracker(grid, curve, threshold=0.1, config=config)
+    planner = RotationPlanner(toy_model, PlannerConfig(radius=0.05, spread_penalty=0.0,
+                                                       online=False, noise_gate=0.0))
+    tracker.plan_rotation, tracker.retract_rotation = planner.plan, planner.retract
+    for _ in range(20):                 # a steady laser: the planner turns once
+        planner.observe(np.exp(0.2), np.exp(3.0))
+        tracker.step(0.2)
+        if tracker.planned:
+            break
+    turn, u = tracker.planned, tracker.branch * tracker.estimate
+    assert turn > 0 and tracker.rotation(u) == pytest.approx(turn)
+    for _ in range(config.guard_periods):   # the pulse goes before the next plan
+        planner.observe(np.exp(0.2), np.exp(3.0))
+        tracker.step(0.05)
+    assert tracker.rotation(u) == pytest.approx(0.0 if forget else turn, abs=1e-12)
+    assert planner.undone == int(forget)
