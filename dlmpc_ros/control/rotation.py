@@ -63,7 +63,7 @@ class CurveRotation:
         weights = np.array([1.0 - w_right, w_right])
         change = delta * weights / float(np.sum(weights ** 2))
         index = [right - 1, right]
-        if self.spread > 0:  # the whole curve, and the two knots the rest of delta at u
+        if self.spread > 0 and delta:  # the unexplored knots, then the rest at u's two
             shared = delta * np.exp(-0.5 * ((self.knots - u) / self.spread) ** 2)
             shared[self.explored] = 0.0
             self.values = np.clip(self.values + shared, -self.limit, self.limit)

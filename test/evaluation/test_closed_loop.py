@@ -71,7 +71,10 @@ def test_evaluate_takes_measurement_noise_in_fast_mode_only(capsys):
     from dlmpc_ros.cli.evaluate import parse_args
     assert parse_args(['--fast', '--measurement-noise', '0.01', '--out', 'x']) \
         .measurement_noise == 0.01
-    for bad in (['--measurement-noise', '0.01'], ['--fast', '--measurement-noise', '1.5']):
+    assert parse_args(['--fast', '--measurement-round-trips', '3', '--out', 'x']) \
+        .measurement_round_trips == 3
+    for bad in (['--measurement-noise', '0.01'], ['--fast', '--measurement-noise', '1.5'],
+                ['--fast', '--measurement-round-trips', '0']):
         with pytest.raises(SystemExit):
             parse_args([*bad, '--out', 'x'])
     assert '--measurement-noise' in capsys.readouterr().err

@@ -54,7 +54,8 @@ def test_bringup_rejects_bad_scenario_before_starting_nodes(ros_env, tmp_path):
     assert not (tmp_path / 'logs').exists()
 
 
-@pytest.mark.parametrize('bad', ['--domain-id=300', '--nodes=laser_sim,teleporter'])
+@pytest.mark.parametrize('bad', ['--domain-id=300', '--nodes=laser_sim,teleporter',
+                                 '--measurement-round-trips=0'])
 def test_bringup_rejects_bad_options(ros_env, bad):
     proc = subprocess.run([sys.executable, '-m', 'dlmpc_ros.bringup', bad], env=ros_env,
                           capture_output=True, text=True, timeout=60)
