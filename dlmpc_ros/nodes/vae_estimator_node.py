@@ -25,7 +25,7 @@ from dlmpc_ros.health import CounterWindow, Findings, Health
 from dlmpc_ros.learning.model_files import ModelFileError
 from dlmpc_ros.paths import models_dir
 from dlmpc_ros.ros import params
-from dlmpc_ros.ros.controller_base import (MEASUREMENT_ROUND_TRIPS_DESCRIPTION,
+from dlmpc_ros.ros.controller_base import (COMMON_RANGES, MEASUREMENT_ROUND_TRIPS_DESCRIPTION,
                                            period_measurement_from)
 from dlmpc_ros.ros.diagnostics import DiagnosticsPublisher
 from dlmpc_ros.ros.io import QOS, vector_message
@@ -43,7 +43,8 @@ class VAEEstimatorNode(Node):
         super().__init__('vae_estimator')
         values = params.declare(self, DEFAULTS, DESCRIPTIONS, frozenset(DEFAULTS),
                                 {'period': (1, 1_000_000),
-                                 'measurement_round_trips': (1, 1_000_000)})
+                                 'measurement_round_trips':
+                                     COMMON_RANGES['measurement_round_trips']})
         self.periods = period_measurement_from(values)
         try:
             self.estimator = load_estimator(models_dir(values['models_dir']))

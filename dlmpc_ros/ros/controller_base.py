@@ -56,7 +56,7 @@ COMMON_DESCRIPTIONS = {
 COMMON_RANGES: dict[str, tuple[float, float]] = {
     'period': (1, 1_000_000), 'angle_low': (-1e3, 1e3), 'angle_high': (-1e3, 1e3),
     'max_step': (1e-9, 1e3), 'estimator_timeout': (1e-3, 3600.0),
-    'measurement_round_trips': (1, 1_000_000),
+    'measurement_round_trips': (1, 10_000),  # the states a period keeps for its mean
 }
 
 
