@@ -63,7 +63,9 @@ def run_closed_loop(controller: Controller, scenario: Scenario, round_trips: int
     angles = np.zeros(4) if initial_angles is None else np.asarray(initial_angles, float)
     cavity = Cavity(cavity_config, batch=1, angles=angles, birefringence=scenario(1),
                     initial=initial, seed=initial_seed)
-    builder = RecordBuilder(meta)
+    # what defines the run's measurements, so that a replay forms the same ones
+    builder = RecordBuilder({**(meta or {}), 'period': period,
+                             'measurement_round_trips': measurement_round_trips})
     observe_truth = getattr(controller, 'observe_truth', None)
     for r in range(1, round_trips + 1):
         k = float(scenario(r))
@@ -103,10 +105,10 @@ def replay_decisions(controller: Controller, record: RunRecord,
 
     Every control period of ``record`` gives the measurement ``(E, M, alpha[4])`` of its
     round trips (the mean over the last ``meta['measurement_round_trips']`` at its
-    angles, 1 if the record does not say), as :func:`run_closed_loop` gave it, from the
-    recorded E, M and angles of every round trip; nothing else of the run (no K, no
-    simulator) is used. A noiseless run's controller that reads only its measurements
-    decides exactly as it did in the run.
+    angles, which :func:`run_closed_loop` records; 1 in records from before it did), as
+    :func:`run_closed_loop` gave it, from the recorded E, M and angles of every round
+    trip; nothing else of the run (no K, no simulator) is used. A noiseless run's
+    controller that reads only its measurements decides exactly as it did in the run.
     """
     period = int(record.meta.get('period', 10))
     periods = PeriodMeasurement(period, int(record.meta.get('measurement_round_trips', 1)))
