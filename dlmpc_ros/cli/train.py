@@ -12,7 +12,8 @@ cores), ``models/metrics.json``, ``models/figures/`` and ``models/MODEL_CARD.md`
 ``adapt --bag DIR --out MODELS`` calibrates the models of ``--models-dir`` to a lab's
 laser from a bag of ``bringup --controller explore --record DIR`` (``--round-trips N``:
 its first N round trips only) and writes a models folder to run with
-(:mod:`dlmpc_ros.training.adapt`).
+(:mod:`dlmpc_ros.training.adapt`): the planner's correction, the rotation to start
+from (``--laser-estimator``: also the laser's own estimator and map).
 ``check-estimator`` measures where the shipped estimator's surrogate gets its information
 (angles or E and M; needs true K, so it is an evaluation) and writes a report to ``--out``.
 """
@@ -25,6 +26,7 @@ import sys
 import time
 from pathlib import Path
 
+from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
 from dlmpc_ros.learning.model_files import ModelFileError
 from dlmpc_ros.scaleout import default_workers
 from dlmpc_ros.training.workspace import Workspace
@@ -97,15 +99,22 @@ def check_estimator(ws: Workspace, out: Path, quick: bool, show: bool) -> None:
 def adapt(args: argparse.Namespace, show: bool) -> int:
     """Calibrate the models to the laser of ``--bag``; writes ``--out``."""
     from dlmpc_ros.training.adapt import AdaptConfig, adapt_models
+    from dlmpc_ros.training.adapt_estimator import EstimatorAdaptConfig
     if args.bag is None or args.out is None:
         print('dlmpc-train adapt: give --bag DIR (a run of `bringup --controller explore '
               '--record DIR`) and --out MODELS', file=sys.stderr)
         return 2
+    estimator = (None if not args.laser_estimator else
+                 EstimatorAdaptConfig(epochs=2, map_steps=100, min_windows=50) if args.quick else
+                 EstimatorAdaptConfig())
     report = adapt_models(args.bag, args.models_dir, args.out,
                           AdaptConfig(round_trips=args.round_trips, seed=args.seed,
                                       fine_tune=args.fine_tune,
-                                      epochs=4 if args.quick else AdaptConfig.epochs),
+                                      epochs=4 if args.quick else AdaptConfig.epochs,
+                                      estimator=estimator,
+                                      measurement_round_trips=args.measurement_round_trips),
                           show_progress=show)
+    estimate = report['estimator']
     print(f"adapt: {report['pairs']} pairs to fit and {report['held_out_pairs']} held out "
           f"(the run's last periods) from {report['control_periods']} control periods "
           f"({report['round_trips_used']} round trips); predictor RMSE on the held-out pairs "
@@ -115,7 +124,12 @@ def adapt(args: argparse.Namespace, show: bool) -> int:
           + (f", fine-tuned {report['held_out_rmse_after']:.4f} (members kept at epochs "
              f"{report['epochs_kept']}; 0: shipped)" if args.fine_tune else '')
           + f"; rotation prior at "
-          f"{report['prior_knots_set']} knots; wrote {args.out}", flush=True)
+          f"{report['prior_knots_set']} knots; estimator and map "
+          + (f"learned on {estimate['windows']} windows of {estimate['window']} periods "
+             f"(loss {estimate['train_loss']:.2f}, on the {estimate['held_out_windows']} "
+             f"held out {estimate['held_out_loss']:.2f})" if estimate['kept']
+             else f"shipped ({estimate['why']})")
+          + f"; wrote {args.out}", flush=True)
     return 0
 
 
@@ -136,6 +150,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--fine-tune', action='store_true',
                    help='adapt: also fine-tune the predictor on the bag (measured to plan '
                         'worse; the correction alone is the default)')
+    p.add_argument('--laser-estimator', action='store_true',
+                   help="adapt: also learn this laser's own estimator and map from the bag's "
+                        'windows of measurements (measured to do worse in closed loop than '
+                        'the shipped ones: bench/results/laser_estimator.md)')
+    p.add_argument('--measurement-round-trips', type=int, default=MEASUREMENT_ROUND_TRIPS,
+                   help='adapt: round trips a period\'s measurement averages, as the '
+                        f'controller\'s parameter (default {MEASUREMENT_ROUND_TRIPS})')
     p.add_argument('--workers', type=int, default=default_workers(),
                    help='response: simulate its data on this many local Dask workers '
                         '(default: the cores)')

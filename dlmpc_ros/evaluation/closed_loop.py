@@ -93,7 +93,7 @@ def run_closed_loop(controller: Controller, scenario: Scenario, round_trips: int
             observe_truth(k)
         step = controller.step(measurement, surrogate)
         cavity.set_angles(step.angles)
-        builder.add_step(r, step, estimate_ms)
+        builder.add_step(r, step, estimate_ms, surrogate)
         if progress is not None:
             progress(r)
     return builder.build()

@@ -78,17 +78,20 @@ def _tracking(record: RunRecord) -> np.ndarray:
     return np.isin(record.mode, [MODES.index('track'), MODES.index('plan')])
 
 
-def surrogate_correlation(record: RunRecord, tracking: bool = False) -> float | None:
-    """|Pearson r| between the true K and, at the control periods, the VAE surrogate
-    (``tracking`` False) or the curve tracker's estimate (True)."""
-    ok = np.isfinite(record.surrogate) & (_tracking(record) == tracking)
+def surrogate_correlation(record: RunRecord, tracking: bool = False,
+                          estimator: bool = False) -> float | None:
+    """|Pearson r| between the true K and, at the control periods, the surrogate the
+    controller used (the VAE's, ``tracking`` False, or the curve tracker's estimate,
+    True), or with ``estimator`` the estimator's own surrogate in those same periods."""
+    values = record.estimate if estimator else record.surrogate
+    ok = np.isfinite(values) & (_tracking(record) == tracking)
     if ok.sum() < 3:
         return None
     index = np.searchsorted(record.round_trip, record.control_round_trip[ok])
     k = record.K[np.clip(index, 0, record.K.size - 1)]
-    if np.std(k) == 0 or np.std(record.surrogate[ok]) == 0:
+    if np.std(k) == 0 or np.std(values[ok]) == 0:
         return None
-    return float(abs(np.corrcoef(record.surrogate[ok], k)[0, 1]))
+    return float(abs(np.corrcoef(values[ok], k)[0, 1]))
 
 
 def plot_surrogate(record: RunRecord, title: str, path: Path) -> Path:

@@ -32,6 +32,7 @@ def record_from_csv(run_csv: Path, meta: dict | None = None) -> RunRecord:
                      control_round_trip=decisions['round_trip'].astype(np.int64), mode=mode,
                      surrogate=surrogate, prediction_error=error,
                      iterations=decisions['iterations'].astype(np.int64), latency_ms=latency,
+                     estimate=np.full(mode.shape, np.nan),  # run.controller.csv has none
                      meta=dict(meta or {}))
 
 

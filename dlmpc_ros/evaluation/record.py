@@ -16,7 +16,7 @@ from dlmpc_ros.control.step import MODES, ControlStep
 
 ROUND_TRIP_FIELDS = ('round_trip', 'K', 'E', 'M', 'O', 'angles')
 PERIOD_FIELDS = ('control_round_trip', 'mode', 'surrogate', 'prediction_error', 'iterations',
-                 'latency_ms')
+                 'latency_ms', 'estimate')
 
 
 @dataclass
@@ -26,7 +26,9 @@ class RunRecord:
     [rad] the round trip ran with. Per control period (C,): ``control_round_trip`` (the
     round trip whose measurement the controller acted on), ``mode`` (index into
     :data:`~dlmpc_ros.control.step.MODES`), ``surrogate``, ``prediction_error``,
-    ``iterations`` and ``latency_ms`` (estimate plus plan)."""
+    ``iterations``, ``latency_ms`` (estimate plus plan) and ``estimate`` (the estimator's
+    own surrogate, whichever the controller used; NaN: no estimator, or a record made
+    before it was kept)."""
 
     round_trip: np.ndarray
     K: np.ndarray
@@ -40,6 +42,7 @@ class RunRecord:
     prediction_error: np.ndarray = field(default_factory=lambda: np.zeros(0))
     iterations: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     latency_ms: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    estimate: np.ndarray = field(default_factory=lambda: np.zeros(0))
     meta: dict = field(default_factory=dict)
 
     @property
@@ -59,8 +62,11 @@ class RunRecord:
     @classmethod
     def load(cls, path: str | Path) -> RunRecord:
         with np.load(path, allow_pickle=False) as data:
-            arrays = {f.name: data[f.name] for f in fields(cls) if f.name != 'meta'}
+            arrays = {f.name: data[f.name] for f in fields(cls)
+                      if f.name != 'meta' and f.name in data.files}
             meta = json.loads(str(data['meta']))
+        if 'estimate' not in arrays:  # a record made before the estimate was kept
+            arrays['estimate'] = np.full(arrays['control_round_trip'].shape, np.nan)
         return cls(**arrays, meta=meta)
 
 
@@ -76,16 +82,19 @@ class RecordBuilder:
                        angles: np.ndarray) -> None:
         self.rows.append((round_trip, k, e, m, o, *np.asarray(angles, float)))
 
-    def add_step(self, round_trip: int, step: ControlStep, extra_latency_ms: float = 0.0) -> None:
+    def add_step(self, round_trip: int, step: ControlStep, extra_latency_ms: float = 0.0,
+                 estimate: float | None = None) -> None:
+        """One control period; ``estimate`` is the estimator's surrogate (None: none)."""
         self.steps.append((round_trip, step.mode_index, step.surrogate, step.prediction_error,
-                           step.iterations, step.latency_ms + extra_latency_ms))
+                           step.iterations, step.latency_ms + extra_latency_ms,
+                           np.nan if estimate is None else estimate))
 
     def build(self) -> RunRecord:
         rows = np.array(self.rows, float).reshape(-1, 9)
-        steps = np.array(self.steps, float).reshape(-1, 6)
+        steps = np.array(self.steps, float).reshape(-1, 7)
         return RunRecord(round_trip=rows[:, 0].astype(np.int64), K=rows[:, 1], E=rows[:, 2],
                          M=rows[:, 3], O=rows[:, 4], angles=rows[:, 5:9],
                          control_round_trip=steps[:, 0].astype(np.int64),
                          mode=steps[:, 1].astype(np.int64), surrogate=steps[:, 2],
                          prediction_error=steps[:, 3], iterations=steps[:, 4].astype(np.int64),
-                         latency_ms=steps[:, 5], meta=self.meta)
+                         latency_ms=steps[:, 5], estimate=steps[:, 6], meta=self.meta)

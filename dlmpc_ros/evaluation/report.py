@@ -14,14 +14,16 @@ from dlmpc_ros.evaluation.record import RunRecord
 
 TABLE_KEYS = ('oracle_ratio', 'oracle_controller_ratio', 'locked_fraction',
               'acquisition_round_trips', 'recovery_round_trips_max', 'step_latency_ms_median',
-              'step_latency_ms_p99', 'track_estimate_abs_r')
+              'step_latency_ms_p99', 'track_estimate_abs_r', 'estimator_abs_r')
 
 
 def measure(record: RunRecord, envelope: dict, run_dir: Path, **extra) -> dict:
     """The run's metrics (plus ``extra``), saved with its record in ``run_dir``."""
     metrics = {**run_metrics(record, envelope), **extra,
                'surrogate_abs_r': surrogate_correlation(record),
-               'track_estimate_abs_r': surrogate_correlation(record, tracking=True)}
+               'track_estimate_abs_r': surrogate_correlation(record, tracking=True),
+               # the estimator's own surrogate while the tracker tracked
+               'estimator_abs_r': surrogate_correlation(record, tracking=True, estimator=True)}
     record.save(run_dir / 'record.npz')
     (run_dir / 'metrics.json').write_text(json.dumps({**record.meta, **metrics}, indent=2))
     return metrics

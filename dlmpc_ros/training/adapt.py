@@ -30,10 +30,14 @@ parameter: a hardware laser has neither) this module
    the controller starts from (``rotation_prior.npz``), only where it beats the bin of
    the shipped rotation (0) by ``prior_margin`` and both hold ``prior_samples`` states
    (else 0: no evidence that a turn pays there);
+5. with ``estimator`` (off by default), learns this laser's own estimator and
+   K-to-angles map from its windows of measurements, without labels
+   (:mod:`~dlmpc_ros.training.adapt_estimator`);
 
 and writes a models folder that ``bringup --models-dir`` and ``dlmpc-evaluate
 --models-dir`` run with: the shipped files, ``response.pt`` (adapted with ``fine_tune``),
-the correction and the prior.
+the correction, the prior (and with ``estimator`` the laser's ``vae.pt``, ``vae_encoder.*``
+and ``kmap.pt``).
 """
 
 from __future__ import annotations
@@ -49,6 +53,7 @@ import numpy as np
 import torch
 
 from dlmpc_ros import interfaces as itf
+from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
 from dlmpc_ros.control.rotation import locate
 from dlmpc_ros.control.rotation_planner import OnlineCorrection
 from dlmpc_ros.control.tracking import TrackingConfig
@@ -61,6 +66,7 @@ from dlmpc_ros.learning.rotation_prior import save_rotation_prior
 from dlmpc_ros.learning.turn_correction import FILE_NAME as CORRECTION_FILE
 from dlmpc_ros.learning.turn_correction import save_turn_correction
 from dlmpc_ros.recording.reader import read_bag
+from dlmpc_ros.training.adapt_estimator import EstimatorAdaptConfig, calibrate_estimator
 
 
 @dataclass(frozen=True)
@@ -97,10 +103,17 @@ class AdaptConfig:
     """Width of the rotation bins of the prior [rad]."""
     prior_margin: float = 0.02
     """Least relative gain of mean O of a bin over the shipped rotation's bin."""
+    estimator: EstimatorAdaptConfig | None = None
+    """Learn this laser's own estimator and map (:mod:`~dlmpc_ros.training.adapt_estimator`;
+    None, the default: the shipped ones, which measured better in closed loop,
+    ``bench/results/laser_estimator.md``)."""
+    measurement_round_trips: int = MEASUREMENT_ROUND_TRIPS
+    """Round trips a period's measurement averages, as the controller's parameter."""
     seed: int = 0
 
     def __post_init__(self) -> None:
-        checks.counts(self, 'period', 'window', 'epochs', 'prior_samples')
+        checks.counts(self, 'period', 'window', 'epochs', 'prior_samples',
+                      'measurement_round_trips')
         checks.counts(self, 'round_trips', 'seed', minimum=0)
         checks.positive(self, 'same_point')
         checks.positive(self, 'misfit')
@@ -114,18 +127,21 @@ class AdaptConfig:
         checks.non_negative(self, 'prior_margin')
 
 
-def laser_periods(bag: Path, cfg: AdaptConfig) -> dict[str, np.ndarray]:
-    """The bag's ``/laser/state`` at the end of every control period: ``round_trip``,
-    ``E``, ``M`` (n,) and ``angles`` (n, 4)."""
+def laser_states(bag: Path, cfg: AdaptConfig) -> np.ndarray:
+    """The bag's ``/laser/state`` messages (n, 10) up to round trip ``cfg.round_trips``."""
     topic = read_bag(bag, [itf.TOPIC_STATE]).get(itf.TOPIC_STATE)
     if topic is None or not len(topic):
         raise FileNotFoundError(f'{bag} has no {itf.TOPIC_STATE} messages to calibrate from')
     data = topic.data
-    round_trip = data[:, 0]
-    keep = np.isfinite(data[:, :12]).all(axis=1) & (round_trip % cfg.period == 0)
-    if cfg.round_trips:
-        keep &= round_trip <= cfg.round_trips
-    data = data[keep][np.argsort(round_trip[keep], kind='stable')]
+    return data[data[:, 0] <= cfg.round_trips] if cfg.round_trips else data
+
+
+def laser_periods(states: np.ndarray, cfg: AdaptConfig) -> dict[str, np.ndarray]:
+    """The ``/laser/state`` messages ``states`` (n, 10) at the end of every control
+    period: ``round_trip``, ``E``, ``M`` (n,) and ``angles`` (n, 4)."""
+    round_trip = states[:, 0]
+    keep = np.isfinite(states[:, :12]).all(axis=1) & (round_trip % cfg.period == 0)
+    data = states[keep][np.argsort(round_trip[keep], kind='stable')]
     return {'round_trip': data[:, 0], 'E': data[:, 1], 'M': data[:, 2],
             'angles': data[:, 6:10]}
 
@@ -189,7 +205,8 @@ def adapt_models(bag: Path, models_dir: Path, out: Path, cfg: AdaptConfig | None
     bag, models_dir, out = Path(bag), Path(models_dir), Path(out)
     grid, curve, _ = load_curve(models_dir / FILE_NAME)
     model, payload = load_response(models_dir / 'response.pt')
-    periods = laser_periods(bag, cfg)
+    states_bag = laser_states(bag, cfg)
+    periods = laser_periods(states_bag, cfg)
     _, _, states = laser_pairs(periods, grid, curve, cfg)
     train, held_out = split_periods(periods, cfg.validation)
     x, y, _ = laser_pairs(train, grid, curve, cfg)
@@ -209,6 +226,12 @@ def adapt_models(bag: Path, models_dir: Path, out: Path, cfg: AdaptConfig | None
     values = rotation_prior(states, knots, cfg)
     if out.resolve() != models_dir.resolve():
         shutil.copytree(models_dir, out, dirs_exist_ok=True)
+    estimator = ({'kept': False, 'why': 'not asked for'} if cfg.estimator is None
+                 else calibrate_estimator(
+                     states_bag, out, cfg.estimator, period=cfg.period,
+                     round_trips=cfg.measurement_round_trips,
+                     pulse_fraction=cfg.pulse_fraction, validation=cfg.validation,
+                     seed=cfg.seed, show_progress=show_progress))
     report = {'bag': str(bag.resolve()), 'models_dir': str(models_dir.resolve()),
               'round_trips_used': int(periods['round_trip'][-1]) if periods['round_trip'].size
               else 0, 'control_periods': int(periods['round_trip'].size),
@@ -217,8 +240,8 @@ def adapt_models(bag: Path, models_dir: Path, out: Path, cfg: AdaptConfig | None
               'held_out_rmse_before': before_val, 'held_out_rmse_after': after_val,
               'epochs_kept': epochs_kept, 'correction': coefficients.tolist(),
               'held_out_rmse_corrected': corrected_val,
-              'prior_knots_set': int(np.count_nonzero(values)), 'settings': asdict(cfg),
-              'wall_seconds': round(time.monotonic() - started, 1)}
+              'prior_knots_set': int(np.count_nonzero(values)), 'estimator': estimator,
+              'settings': asdict(cfg), 'wall_seconds': round(time.monotonic() - started, 1)}
     metrics = {**payload.get('metrics', {}), 'adapted': report}
     save_checkpoint(out / 'response.pt', 'response', model.state_dict(), payload['config'],
                     metrics, payload.get('data_fingerprint', ''))

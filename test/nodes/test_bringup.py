@@ -107,7 +107,7 @@ def test_an_exploring_run_records_every_state_message_and_calibrates_the_models(
     """The calibration workflow of a lab: record the exploring DL-MPC on a laser that is
     not the nominal cavity, then `dlmpc-train adapt` makes a models folder from the bag
     that the controller loads."""
-    from dlmpc_ros.control.factory import load_dlmpc
+    from dlmpc_ros.control.factory import load_dlmpc, load_estimator
     from dlmpc_ros.recording import check_round_trips, read_bag
     bag = tmp_path / 'bag'
     proc = subprocess.run(
@@ -127,12 +127,16 @@ def test_an_exploring_run_records_every_state_message_and_calibrates_the_models(
     adapted = tmp_path / 'adapted'
     proc = subprocess.run(
         [sys.executable, '-m', 'dlmpc_ros.cli.train', 'adapt', '--bag', str(bag), '--out',
-         str(adapted), '--quick', '--no-progress'],
+         str(adapted), '--quick', '--laser-estimator', '--no-progress'],
         env=ros_env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     report = json.loads((adapted / 'adapt.json').read_text())
     assert report['pairs'] > 0 and report['held_out_pairs'] > 0
     assert report['round_trips_used'] >= 3000
+    # 300 periods: the laser's own estimator learns from their windows with a pulse
+    estimator = report['estimator']
+    assert estimator['kept'] and estimator['periods'] >= 300, estimator
+    assert load_estimator(adapted).encoder.window == estimator['window']
     controller = load_dlmpc(adapted)
     assert controller.rotation_prior is not None and controller.planner is not None
     if any(report['correction']):       # kept: the planner starts from it
