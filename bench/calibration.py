@@ -11,7 +11,8 @@ same runs::
         --budget 2000 --budget 5000 --budget 20000 --out bench/results/calibration
 
 Writes ``OUT/calibration.json`` and ``OUT/calibration.md`` (mean O / O* per plant and
-budget; 0 is the shipped models).
+budget, 0 being the shipped models, and the |r| of the estimator's surrogate with K while
+the tracker tracked). ``--laser-estimator``: adapt also learns the laser's own estimator.
 """
 
 from __future__ import annotations
@@ -42,9 +43,12 @@ def evaluate(plant: int, models: Path, out: Path, seeds: list[int], workers: int
          *[a for s in seeds for a in ('--seed', str(s))], '--controller', 'dlmpc',
          '--models-dir', str(models), '--workers', str(workers), '--out', str(out)])
     runs = json.loads((out / 'metrics.json').read_text())['runs']
-    return {scenario: float(np.mean([r['metrics']['oracle_ratio'] for r in runs
-                                     if r['scenario'] == scenario]))
-            for scenario in ('sinusoidal', 'random_walk')}
+    row = {scenario: float(np.mean([r['metrics']['oracle_ratio'] for r in runs
+                                    if r['scenario'] == scenario]))
+           for scenario in ('sinusoidal', 'random_walk')}
+    # |r| of the estimator's own surrogate with K while the tracker tracked (K: scores only)
+    row['estimator_abs_r'] = [r['metrics'].get('estimator_abs_r') for r in runs]
+    return row
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -58,6 +62,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--seeds', type=int, nargs='+', default=[1, 2, 3])
     p.add_argument('--workers', type=int, default=2)
     p.add_argument('--domain-id', type=int, default=93)
+    p.add_argument('--laser-estimator', action='store_true',
+                   help="adapt also learns the laser's own estimator and map")
     p.add_argument('--out', type=Path, required=True)
     args = p.parse_args(argv)
     length = args.record_round_trips or max(args.budget)
@@ -79,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
             models = work / f'models-{budget}'
             run([str(BIN / 'dlmpc-train'), 'adapt', '--bag', str(bag), '--round-trips',
                  str(budget), '--models-dir', str(ROOT / 'models'), '--out', str(models),
-                 '--no-progress'])
+                 '--no-progress', *(['--laser-estimator'] if args.laser_estimator else [])])
             rows[budget] = evaluate(plant, models, work / f'eval-{budget}', args.seeds,
                                     args.workers)
             rows[budget]['adapt'] = json.loads((models / 'adapt.json').read_text())
@@ -87,8 +93,8 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / 'calibration.json').write_text(json.dumps(results, indent=1, default=str))
     lines = ['| plant | budget [round trips] | sinusoidal | random_walk | pairs fit / held out '
-             '| held-out RMSE shipped -> corrected | correction (a, b, c) | prior knots |',
-             '|---|---|---|---|---|---|---|---|']
+             '| held-out RMSE shipped -> corrected | correction (a, b, c) | prior knots '
+             '| estimator \\|r\\| (min-max) |', '|---|---|---|---|---|---|---|---|---|']
     for plant, rows in results['plants'].items():
         for budget, row in rows.items():
             a = row.get('adapt')
@@ -97,8 +103,11 @@ def main(argv: list[str] | None = None) -> int:
                      f"{a['held_out_rmse_corrected']:.3f} | "
                      f"{', '.join(f'{c:.4f}' for c in a['correction'])} | "
                      f"{a['prior_knots_set']}")
+            r = [v for v in row['estimator_abs_r'] if v is not None]
+            spread = f'{min(r):.2f}-{max(r):.2f}' if r else '-'
             lines.append(f"| family-{plant} | {budget or 'shipped models'} | "
-                         f"{row['sinusoidal']:.3f} | {row['random_walk']:.3f} | {extra} |")
+                         f"{row['sinusoidal']:.3f} | {row['random_walk']:.3f} | {extra} | "
+                         f"{spread} |")
     (args.out / 'calibration.md').write_text('\n'.join(lines) + '\n')
     print('\n'.join(lines))
     return 0

@@ -63,6 +63,11 @@ class PlannerConfig:
     predicted any turn gains on this laser."""
     memory: int = 30
     """Recent moves the online correction is fit to."""
+    turn_ridge: float = 1.0
+    """Weight of the pull of the correction's terms in the turn (``b``, ``c``) toward their
+    start, against that of its intercept ``a`` (1: the same): above 1, the errors of the
+    first few moves go mostly into ``a`` (what K's drift did between a move's two
+    measurements) until the moves show which turns pay."""
     prior_moves: float = 10.0
     """Weight of a calibrated correction (``turn_correction.npz`` of ``dlmpc-train
     adapt``), in moves of the run: the online fit is pulled toward it as strongly as
@@ -83,6 +88,7 @@ class PlannerConfig:
         checks.non_negative(self, 'min_gain')
         checks.non_negative(self, 'noise_gate')
         checks.positive(self, 'prior_moves')
+        checks.positive(self, 'turn_ridge')
         if not 0 < self.undo_below <= 1:
             raise ValueError(f'undo_below must be in (0, 1], got {self.undo_below}')
 
@@ -100,11 +106,12 @@ class OnlineCorrection:
     weight 1)."""
 
     def __init__(self, memory: int, ridge: float = 1.0, magnitude: bool = True,
-                 prior: np.ndarray | None = None) -> None:
+                 prior: np.ndarray | None = None, turn_ridge: float = 1.0) -> None:
         self.moves: deque[tuple[float, float]] = deque(maxlen=memory)  # (delta, error)
-        self.ridge = ridge
         self.magnitude = magnitude
         terms = 3 if magnitude else 2
+        #: (terms,) ridge weight per term: ``ridge`` on a, ``ridge * turn_ridge`` on b, c
+        self.ridge = ridge * np.r_[1.0, np.full(terms - 1, turn_ridge)]
         self.prior = np.zeros(terms) if prior is None else np.asarray(prior, float)[:terms]
         if self.prior.shape != (terms,) or not np.all(np.isfinite(self.prior)):
             raise ValueError(f'the correction prior must be 3 finite values, got {prior}')
@@ -128,7 +135,7 @@ class OnlineCorrection:
             return
         d, e = np.array(self.moves).T
         x = self._terms(d)
-        self.coefficients = np.linalg.solve(x.T @ x + self.ridge * np.eye(x.shape[1]),
+        self.coefficients = np.linalg.solve(x.T @ x + np.diag(self.ridge),
                                             x.T @ e + self.ridge * self.prior)
 
     def __call__(self, delta: np.ndarray) -> np.ndarray:
@@ -146,7 +153,8 @@ class RotationPlanner:
         calibrated = correction_prior is not None
         self.correction = OnlineCorrection(
             self.config.memory, ridge=self.config.prior_moves if calibrated else 1.0,
-            magnitude=self.config.online_magnitude, prior=correction_prior)
+            magnitude=self.config.online_magnitude, prior=correction_prior,
+            turn_ridge=self.config.turn_ridge)
         self.moves = 0
         self.undone = 0
         self._rng = np.random.default_rng(self.config.seed)
