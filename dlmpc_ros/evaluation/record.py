@@ -27,8 +27,8 @@ class RunRecord:
     round trip whose measurement the controller acted on), ``mode`` (index into
     :data:`~dlmpc_ros.control.step.MODES`), ``surrogate``, ``prediction_error``,
     ``iterations``, ``latency_ms`` (estimate plus plan) and ``estimate`` (the estimator's
-    own surrogate, whichever the controller used; NaN: no estimator, or a record made
-    before it was kept)."""
+    own surrogate, whether the controller used it or not; NaN: no estimator, or a record
+    made before it was kept)."""
 
     round_trip: np.ndarray
     K: np.ndarray

@@ -81,20 +81,26 @@ def period_rows(states: np.ndarray, period: int, round_trips: int) -> np.ndarray
     return np.asarray(rows, float).reshape(-1, 6)
 
 
-def pulse_windows(rows: np.ndarray, window: int, pulse_fraction: float) -> np.ndarray:
+def pulse_windows(rows: np.ndarray, window: int, pulse_fraction: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """Every window (B, w, 6) of ``window`` consecutive periods that all hold a pulse (O
-    at least ``pulse_fraction`` of the run's best), in time order."""
+    at least ``pulse_fraction`` of the run's best), in time order, and the index (B,) of
+    the period each ends at."""
     objective = rows[:, 0] / rows[:, 1]
     pulse = np.isfinite(objective) & (objective >= pulse_fraction * np.nanmax(objective))
     ends = np.flatnonzero(np.convolve(pulse, np.ones(window), 'valid') == window) + window
-    return np.stack([rows[e - window:e] for e in ends]) if ends.size else np.zeros(
-        (0, window, 6))
+    windows = (np.stack([rows[e - window:e] for e in ends]) if ends.size
+               else np.zeros((0, window, 6)))
+    return windows, ends - 1
 
 
-def train_window_vae(train: np.ndarray, cfg: EstimatorAdaptConfig, seed: int = 0,
-                     show_progress: bool = False) -> tuple[ConditionalVAE, dict]:
-    """The conditional VAE on windows (B, w, 6) in time order, without labels, with its
-    surrogate coordinate chosen and standardized over them; returns it and its scores."""
+def train_window_vae(train: np.ndarray, ends: np.ndarray, cfg: EstimatorAdaptConfig,
+                     seed: int = 0, show_progress: bool = False
+                     ) -> tuple[ConditionalVAE, dict]:
+    """The conditional VAE on windows (B, w, 6) in time order, ending at periods ``ends``
+    (B,), without labels, with its surrogate coordinate chosen (over the changes between
+    windows of consecutive periods) and standardized over them; returns it and its
+    scores."""
     norm = Normalizer.fit(train[..., 0], train[..., 1])
     config = VAEConfig(window=train.shape[1], latent=cfg.latent, conditional=True,
                        beta=cfg.beta, normalizer=norm.to_dict())
@@ -106,7 +112,8 @@ def train_window_vae(train: np.ndarray, cfg: EstimatorAdaptConfig, seed: int = 0
         mu, logvar = (v.numpy() for v in model.encode(torch.as_tensor(train,
                                                                       dtype=torch.float32)))
     kl = (-0.5 * (1 + logvar - mu ** 2 - np.exp(logvar))).mean(axis=0)
-    dim, roughness = smoothest_used(kl, np.diff(mu, axis=0), mu.var(axis=0))
+    following = np.diff(ends) == 1
+    dim, roughness = smoothest_used(kl, np.diff(mu, axis=0)[following], mu.var(axis=0))
     model.config = replace(config, surrogate_dim=dim, surrogate_mean=float(mu[:, dim].mean()),
                            surrogate_std=float(mu[:, dim].std() or 1.0))
     return model, {'surrogate_dim': dim, 'kl_per_dim': kl.tolist(),
@@ -145,7 +152,7 @@ def calibrate_estimator(states: np.ndarray, out: Path, cfg: EstimatorAdaptConfig
     With fewer than ``cfg.min_windows`` training windows ``out`` keeps the shipped ones.
     Returns the report (``kept``: whether they were written)."""
     rows = period_rows(states, period, round_trips)
-    windows = pulse_windows(rows, cfg.window, pulse_fraction)
+    windows, ends = pulse_windows(rows, cfg.window, pulse_fraction)
     cut = int(round((1 - validation) * len(windows)))
     train, held = windows[:cut], windows[cut:]
     report: dict = {'periods': int(len(rows)), 'windows': int(cut),
@@ -154,7 +161,7 @@ def calibrate_estimator(states: np.ndarray, out: Path, cfg: EstimatorAdaptConfig
         return {**report, 'kept': False,
                 'why': f'{cut} windows of {cfg.window} periods with a pulse to train on, '
                        f'{cfg.min_windows} needed: the shipped estimator stays'}
-    model, scores = train_window_vae(train, cfg, seed, show_progress)
+    model, scores = train_window_vae(train, ends[:cut], cfg, seed, show_progress)
     kmap, map_scores = fit_laser_map(model, train, cfg, seed)
     _, shipped_payload = load_kmap(out / 'kmap.pt')
     report.update(scores, kept=True, map=map_scores,

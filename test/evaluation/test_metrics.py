@@ -58,6 +58,26 @@ def test_record_round_trips_through_a_file(tmp_path):
     assert back.meta == {'controller': 'x'} and back.mode_names == ['outer'] * 3
 
 
+def test_the_estimators_own_surrogate_is_kept_and_an_older_record_without_it_loads(tmp_path):
+    """A record keeps the estimator's surrogate beside the one the controller used; a file
+    written before it was kept loads with NaN there (no estimate), not a KeyError."""
+    from dlmpc_ros.evaluation.figures import surrogate_correlation
+    k = np.linspace(-0.2, 0.2, 30)
+    record = replace(_record(np.full(30, 0.1), k, latency=np.ones(30)),
+                     control_round_trip=np.arange(1, 31), mode=np.full(30, MODES.index('track')),
+                     surrogate=np.sin(40 * k), estimate=-3 * k)
+    assert surrogate_correlation(record, tracking=True, estimator=True) == pytest.approx(1.0)
+    assert surrogate_correlation(record, tracking=True) < 0.5
+    path = record.save(tmp_path / 'r.npz')
+    with np.load(path) as data:
+        older = {name: data[name] for name in data.files if name != 'estimate'}
+    np.savez(tmp_path / 'old.npz', **older)
+    back = RunRecord.load(tmp_path / 'old.npz')
+    assert back.estimate.shape == (30,) and np.isnan(back.estimate).all()
+    assert surrogate_correlation(back, tracking=True, estimator=True) is None
+    np.testing.assert_array_equal(RunRecord.load(path).estimate, record.estimate)
+
+
 def test_round_trips_without_k_are_left_out_and_a_run_without_k_gets_measured_metrics():
     record = _record(np.full(100, 0.1), np.zeros(100))
     partial = replace(record, K=np.r_[np.zeros(90), np.full(10, np.nan)],

@@ -35,10 +35,11 @@ def test_a_period_row_is_the_mean_of_its_round_trips_at_its_angles():
 def test_windows_hold_a_pulse_in_every_period():
     rows = np.tile([5.0, 1.0, 0, 0, 0, 0], (10, 1))
     rows[4, 0] = 0.5                                  # one period without a pulse
-    windows = pulse_windows(rows, 3, 0.3)
+    windows, ends = pulse_windows(rows, 3, 0.3)
     assert windows.shape == (5, 3, 6)                 # periods 0-2, 1-3, 5-7, 6-8, 7-9
+    np.testing.assert_array_equal(ends, [2, 3, 7, 8, 9])
     assert np.all(windows[..., 0] == 5.0)
-    assert pulse_windows(rows, 11, 0.3).shape == (0, 11, 6)
+    assert pulse_windows(rows, 11, 0.3)[0].shape == (0, 11, 6)
 
 
 def _dithered_laser(periods: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -72,7 +73,7 @@ def test_the_laser_estimator_learns_a_hidden_drift_from_windows_without_labels(t
     assert report['kept'] and report['windows'] == int(round(0.75 * (1600 - 11)))
     vae, payload = load_vae(out / 'vae.pt')
     assert vae.config.window == 12 and payload['metrics']['adapted']['kept']
-    windows = pulse_windows(rows, 12, 0.3)
+    windows, _ = pulse_windows(rows, 12, 0.3)
     held = slice(report['windows'], None)
     s = surrogate_of(vae, windows[held])
     assert abs(np.corrcoef(s, k[11:][held])[0, 1]) > 0.8
