@@ -112,7 +112,7 @@ def window_vae(rows: np.ndarray, k: np.ndarray, run: np.ndarray, period: np.ndar
     from dlmpc_ros.learning.features import Normalizer
     from dlmpc_ros.learning.fit import fit
     from dlmpc_ros.learning.vae import ConditionalVAE, VAEConfig
-    from dlmpc_ros.training.stages.vae import smoothest_used
+    from dlmpc_ros.training.stages.vae import label_free_choice
     norm = Normalizer.fit(rows[train][..., 0], rows[train][..., 1])
     model = ConditionalVAE(VAEConfig(window=rows.shape[1], latent=3, conditional=True,
                                      beta=0.05, normalizer=norm.to_dict()),
@@ -121,10 +121,10 @@ def window_vae(rows: np.ndarray, k: np.ndarray, run: np.ndarray, period: np.ndar
     with torch.no_grad():
         mu, logvar = (v.numpy() for v in model.encode(torch.as_tensor(rows, dtype=torch.float32)))
     # the label-free choice of dlmpc-train vae, over consecutive training windows
-    kl = (-0.5 * (1 + logvar - mu ** 2 - np.exp(logvar)))[train].mean(0)
-    following = (train[1:] & train[:-1] & (run[1:] == run[:-1])
-                 & (np.diff(period) == 1))
-    dim, _ = smoothest_used(kl, np.diff(mu, axis=0)[following], mu[train].var(0))
+    rows_train = np.flatnonzero(train)
+    following = ((np.diff(rows_train) == 1) & (np.diff(run[train]) == 0)
+                 & (np.diff(period[train]) == 1))
+    dim, _ = label_free_choice(mu[train], logvar[train], following)
     design = np.column_stack([mu, np.ones(len(mu))])
     coef = np.linalg.lstsq(design[train], k[train], rcond=None)[0]
     return {'surrogate_dim': dim, 'surrogate_abs_r': abs_r(mu[~train, dim], k[~train]),

@@ -32,6 +32,8 @@ STATE_FIELDS = ('round_trip', 'E', 'M', 'O', 'energy', 'peak',
                 'alpha1', 'alpha2', 'alpha3', 'alpha_p')
 OBJECTIVE_FIELDS = ('O',)
 ANGLE_FIELDS = ('alpha1', 'alpha2', 'alpha3', 'alpha_p')
+#: Columns of /laser/state that make the state a controller measures: E, M, the angles.
+MEASURED_COLUMNS = tuple(STATE_FIELDS.index(f) for f in ('E', 'M', *ANGLE_FIELDS))
 BIREFRINGENCE_FIELDS = ('K',)
 SIM_TRUTH_FIELDS = ('round_trip', 'K')
 #: Laser status, once a second: measured rate [round trips/s] and counters since start.
@@ -80,6 +82,12 @@ def vector_fault(data: Sequence[float], fields: Sequence[str], limit: float) -> 
         if abs(value) > limit:
             return f'{name} = {value:g} is outside [-{limit:g}, {limit:g}]'
     return None
+
+
+def measured_state(data: Sequence[float]) -> list[float]:
+    """``(E, M, alpha[4])`` of a /laser/state vector: the state a period's measurement
+    averages (:class:`~dlmpc_ros.control.period_measurement.PeriodMeasurement`)."""
+    return [float(data[i]) for i in MEASURED_COLUMNS]
 
 
 #: Largest round trip a float64 holds exactly (2**53); anything above is not a count.

@@ -1,7 +1,7 @@
 import math
 
-from dlmpc_ros.interfaces import (ANGLE_FIELDS, STATE_FIELDS, RateLimitedLog, usable_state,
-                                  vector_fault)
+from dlmpc_ros.interfaces import (ANGLE_FIELDS, STATE_FIELDS, RateLimitedLog, measured_state,
+                                  usable_state, vector_fault)
 
 
 def test_vector_fault_names_the_problem():
@@ -31,3 +31,10 @@ def test_usable_state_drops_a_malformed_state_with_one_line_that_says_why():
     assert not usable_state(good[:-1], warn)
     assert not usable_state([10.5, *good[1:]], warn)  # round trip is not a count
     assert len(lines) == 1 and '/laser/state' in lines[0] and 'expected 10 values' in lines[0]
+
+
+def test_the_measured_state_of_a_laser_state_is_e_m_and_the_angles():
+    data = [float(i) for i in range(len(STATE_FIELDS))]
+    names = ('E', 'M', *ANGLE_FIELDS)
+    assert measured_state(data) == [data[STATE_FIELDS.index(n)] for n in names]
+    assert measured_state(data) == [1.0, 2.0, 6.0, 7.0, 8.0, 9.0]

@@ -71,7 +71,7 @@ class VAEEstimatorNode(Node):
         if not self.periods.wanted(round_trip):
             return
         started = time.perf_counter()
-        measurement = self.periods.add(round_trip, np.r_[msg.data[1:3], msg.data[6:10]])
+        measurement = self.periods.add(round_trip, itf.measured_state(msg.data))
         if measurement is None:
             return
         surrogate, latent = self.estimator.update(measurement)

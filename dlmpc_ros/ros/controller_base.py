@@ -144,7 +144,7 @@ class ControllerNodeBase(Node):
         round_trip = int(msg.data[0])
         if round_trip == self._last_acted or not self._periods.wanted(round_trip):
             return None
-        measurement = self._periods.add(round_trip, np.r_[msg.data[1:3], msg.data[6:10]])
+        measurement = self._periods.add(round_trip, itf.measured_state(msg.data))
         if measurement is None:
             return None
         if self._pending is not None:

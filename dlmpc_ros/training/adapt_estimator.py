@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from dlmpc_ros import interfaces as itf
 from dlmpc_ros.control.period_measurement import PeriodMeasurement
 from dlmpc_ros.core import checks
 from dlmpc_ros.core.fingerprint import fingerprint_arrays
@@ -38,7 +39,7 @@ from dlmpc_ros.learning.fit import fit
 from dlmpc_ros.learning.kmap import KMap, KMapConfig, load_kmap
 from dlmpc_ros.learning.vae import ConditionalVAE, VAEConfig, export_encoder, surrogate_of
 from dlmpc_ros.training.stages.kmap import SHIPPED_RULE, SubsetRule, train_kmap, training_subset
-from dlmpc_ros.training.stages.vae import smoothest_used
+from dlmpc_ros.training.stages.vae import label_free_choice
 
 
 @dataclass(frozen=True)
@@ -75,7 +76,7 @@ def period_rows(states: np.ndarray, period: int, round_trips: int) -> np.ndarray
     for state in states:
         r = int(state[0])
         if periods.wanted(r):
-            row = periods.add(r, np.r_[state[1:3], state[6:10]])
+            row = periods.add(r, itf.measured_state(state))
             if row is not None:
                 rows.append(row)
     return np.asarray(rows, float).reshape(-1, 6)
@@ -111,16 +112,13 @@ def train_window_vae(train: np.ndarray, ends: np.ndarray, cfg: EstimatorAdaptCon
     with torch.no_grad():
         mu, logvar = (v.numpy() for v in model.encode(torch.as_tensor(train,
                                                                       dtype=torch.float32)))
-    kl = (-0.5 * (1 + logvar - mu ** 2 - np.exp(logvar))).mean(axis=0)
-    following = np.diff(ends) == 1
-    dim, roughness = smoothest_used(kl, np.diff(mu, axis=0)[following], mu.var(axis=0))
+    dim, scores = label_free_choice(mu, logvar, np.diff(ends) == 1)
     model.config = replace(config, surrogate_dim=dim, surrogate_mean=float(mu[:, dim].mean()),
                            surrogate_std=float(mu[:, dim].std() or 1.0))
-    return model, {'surrogate_dim': dim, 'kl_per_dim': kl.tolist(),
-                   'roughness_per_dim': roughness.tolist(), 'final_loss': history[-1]}
+    return model, {'surrogate_dim': dim, **scores, 'final_loss': history[-1]}
 
 
-def heldout_loss(model: ConditionalVAE, windows: np.ndarray, seed: int = 0) -> float:
+def vae_loss(model: ConditionalVAE, windows: np.ndarray, seed: int = 0) -> float:
     """The VAE's loss (negative ELBO per window) on ``windows`` (B, w, 6)."""
     with torch.no_grad():
         loss, _ = model.loss(torch.as_tensor(windows, dtype=torch.float32),
@@ -165,8 +163,8 @@ def calibrate_estimator(states: np.ndarray, out: Path, cfg: EstimatorAdaptConfig
     kmap, map_scores = fit_laser_map(model, train, cfg, seed)
     _, shipped_payload = load_kmap(out / 'kmap.pt')
     report.update(scores, kept=True, map=map_scores,
-                  train_loss=heldout_loss(model, train, seed),
-                  held_out_loss=heldout_loss(model, held, seed))
+                  train_loss=vae_loss(model, train, seed),
+                  held_out_loss=vae_loss(model, held, seed))
     fingerprint = fingerprint_arrays({'windows': train})
     save_checkpoint(out / 'vae.pt', 'vae', model.state_dict(), model.config.to_dict(),
                     {'adapted': report}, fingerprint)

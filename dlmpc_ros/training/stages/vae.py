@@ -45,6 +45,18 @@ def smoothest_used(kl: np.ndarray, differences: np.ndarray, variance: np.ndarray
     return int(eligible[np.argmin(roughness[eligible])]), roughness
 
 
+def label_free_choice(mu: np.ndarray, logvar: np.ndarray, following: np.ndarray,
+                      min_kl: float = 0.05) -> tuple[int, dict[str, list[float]]]:
+    """:func:`smoothest_used` from the posterior means and log-variances (n, latent) of
+    windows in time order; ``following`` (n - 1,) is True where window i + 1 comes one
+    step after window i (the changes between those are the roughness). Returns the
+    coordinate and the per-coordinate scores."""
+    kl = (-0.5 * (1 + logvar - mu ** 2 - np.exp(logvar))).mean(axis=0)
+    dim, roughness = smoothest_used(kl, np.diff(mu, axis=0)[following], mu.var(axis=0),
+                                    min_kl)
+    return dim, {'kl_per_dim': kl.tolist(), 'roughness_per_dim': roughness.tolist()}
+
+
 def choose_surrogate(model: ConditionalVAE, trajectories: np.ndarray,
                      min_kl: float = 0.05) -> tuple[int, dict[str, list[float]]]:
     """Pick the smoothest used latent coordinate over time (no K labels).
@@ -56,13 +68,8 @@ def choose_surrogate(model: ConditionalVAE, trajectories: np.ndarray,
         batch = torch.as_tensor(windows(trajectories, w), dtype=torch.float32)
         mu, logvar = model.encode(batch)
     steps = trajectories.shape[1] - w + 1
-    mu = mu.numpy().reshape(trajectories.shape[0], steps, -1)
-    latent = mu.shape[-1]
-    kl = (-0.5 * (1 + logvar - torch.as_tensor(mu.reshape(-1, latent)) ** 2
-                  - logvar.exp())).mean(0).numpy()
-    dim, roughness = smoothest_used(kl, np.diff(mu, axis=1).reshape(-1, latent),
-                                    mu.reshape(-1, latent).var(0), min_kl)
-    return dim, {'kl_per_dim': kl.tolist(), 'roughness_per_dim': roughness.tolist()}
+    following = np.arange(1, mu.shape[0]) % steps != 0  # not across a lane's end
+    return label_free_choice(mu.numpy(), logvar.numpy(), following, min_kl)
 
 
 def train_vae_stage(ws: Workspace, seed: int = 0, epochs: int = 25,
