@@ -51,5 +51,10 @@ setup(
             f'recorder = {PACKAGE}.nodes.recorder_node:main',
             f'dlmpc-bag = {PACKAGE}.cli.bag:main',
         ],
+        # controllers by name (docs/controllers.md): any installed package may add its own
+        f'{PACKAGE}.controllers': [
+            f'{name} = {PACKAGE}.control.factory:{name}'
+            for name in ('dlmpc', 'esc', 'ga', 'passive', 'fixed_best', 'oracle')
+        ],
     },
 )

@@ -1,14 +1,20 @@
-"""Build any controller by name from the shipped model files (used by the controller
-nodes and by the evaluation, so that both run exactly the same objects).
+"""The built-in controllers' factories and helpers to build any controller by spec from
+the shipped model files (used by the controller nodes and by the evaluation, so that
+both run exactly the same objects).
 
-Raises :class:`~dlmpc_ros.learning.checkpoint.ModelFileError` (missing or corrupt file,
-with the command that regenerates it) or ValueError (bad settings). The torch-based
-pieces (DL-MPC, estimator) are imported when they are built, so that a baseline
-controller starts without loading torch.
+The factories :func:`dlmpc`, :func:`esc`, :func:`ga`, :func:`passive`,
+:func:`fixed_best` and :func:`oracle` are registered by name in setup.py (entry-point
+group ``dlmpc_ros.controllers``), like any plug-in's (:mod:`dlmpc_ros.control.plugins`).
+A factory raises :class:`~dlmpc_ros.learning.checkpoint.ModelFileError` (missing or
+corrupt file, with the command that regenerates it) or ValueError (bad settings);
+:func:`make_controller` reports either as one line (ControllerSpecError). The
+torch-based pieces (DL-MPC, estimator) are imported when they are built, so that a
+baseline controller starts without loading torch.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -19,6 +25,7 @@ from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.esc import ESCController
 from dlmpc_ros.control.ga import GAConfig, GAController
 from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.plugins import build
 from dlmpc_ros.control.step import Controller
 from dlmpc_ros.learning.tables import load_baselines
 
@@ -94,35 +101,63 @@ def passive_angles(baselines: dict[str, np.ndarray], initial_k: float) -> np.nda
     return table[np.abs(k_grid - initial_k).argmin()].copy()
 
 
+def dlmpc(models_dir: Path, limits: AngleLimits, *,
+          config: DLMPCConfig | None = None) -> DLMPCController:
+    """The DL-MPC (:func:`load_dlmpc`) with ``config`` (default: the shipped settings)
+    within ``limits``."""
+    return load_dlmpc(models_dir, replace(config or DLMPCConfig(), limits=limits))
+
+
+def esc(models_dir: Path, limits: AngleLimits) -> ESCController:
+    """Extremum seeking (no model file)."""
+    return ESCController(limits=limits)
+
+
+def ga(models_dir: Path, limits: AngleLimits, *,
+       ga_config: GAConfig | None = None) -> GAController:
+    """The genetic algorithm with ``ga_config`` (no model file)."""
+    return GAController(ga_config, limits)
+
+
+def passive(models_dir: Path, limits: AngleLimits, *, angles: np.ndarray | None = None,
+            initial_k: float | None = None) -> PassiveController:
+    """Holds ``angles``, or the best angles for ``initial_k`` (the setting a person tuned
+    for the start, then left alone; evaluation only)."""
+    if angles is None:
+        if initial_k is None:
+            raise ValueError('passive needs its angles or the initial K they were tuned for')
+        angles = passive_angles(load_baselines(Path(models_dir) / BASELINES_FILE), initial_k)
+    return PassiveController(angles, limits)
+
+
+def fixed_best(models_dir: Path, limits: AngleLimits) -> FixedBestController:
+    """Holds the angles with the best worst-case O over the K range."""
+    return FixedBestController(load_baselines(Path(models_dir) / BASELINES_FILE)
+                               ['fixed_best_angles'], limits)
+
+
+def oracle(models_dir: Path, limits: AngleLimits) -> OracleController:
+    """The best angles for the true K (reads it through ``observe_truth``; evaluation
+    only)."""
+    return OracleController(*oracle_table(load_baselines(Path(models_dir) / BASELINES_FILE)),
+                            limits)
+
+
 def make_baseline(name: str, models_dir: Path, limits: AngleLimits | None = None,
                   angles: np.ndarray | None = None, initial_k: float | None = None,
                   ga_config: GAConfig | None = None) -> Controller:
-    """A baseline controller: ``esc``, ``ga`` (with ``ga_config``), ``passive``
+    """A built-in baseline controller: ``esc``, ``ga`` (with ``ga_config``), ``passive``
     (``angles``, or the best for ``initial_k``), ``fixed_best`` or ``oracle``."""
-    limits = limits or AngleLimits()
-    if name == 'esc':
-        return ESCController(limits=limits)
-    if name == 'ga':
-        return GAController(ga_config, limits)
-    if name not in CONTROLLERS[3:]:
+    if name not in CONTROLLERS[1:]:
         raise ValueError(f'unknown baseline {name!r}; choose one of {CONTROLLERS[1:]}')
-    baselines = load_baselines(Path(models_dir) / BASELINES_FILE)
-    if name == 'passive':
-        if angles is None:
-            if initial_k is None:
-                raise ValueError('passive needs its angles or the initial K they were tuned for')
-            angles = passive_angles(baselines, initial_k)
-        return PassiveController(angles, limits)
-    if name == 'fixed_best':
-        return FixedBestController(baselines['fixed_best_angles'], limits)
-    return OracleController(*oracle_table(baselines), limits)
+    return build(name, models_dir, limits, angles=angles, initial_k=initial_k,
+                 ga_config=ga_config)
 
 
-def make_controller(name: str, models_dir: Path, limits: AngleLimits | None = None,
+def make_controller(spec: str, models_dir: Path, limits: AngleLimits | None = None,
                     initial_k: float | None = None,
                     dlmpc_config: DLMPCConfig | None = None) -> Controller:
-    """Any controller of :data:`CONTROLLERS`: the DL-MPC with ``dlmpc_config`` (default
-    settings within ``limits``) or a baseline (:func:`make_baseline`)."""
-    if name == 'dlmpc':
-        return load_dlmpc(models_dir, dlmpc_config or DLMPCConfig(limits=limits or AngleLimits()))
-    return make_baseline(name, models_dir, limits, initial_k=initial_k)
+    """Any controller by spec (a registered name such as those of :data:`CONTROLLERS`, or
+    ``package.module:factory``) within ``limits``: ``initial_k`` reaches a factory that
+    names it (``passive``), ``dlmpc_config`` one that names ``config`` (``dlmpc``)."""
+    return build(spec, models_dir, limits, initial_k=initial_k, config=dlmpc_config)
