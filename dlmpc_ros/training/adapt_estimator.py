@@ -67,7 +67,8 @@ class EstimatorAdaptConfig:
 def period_rows(states: np.ndarray, period: int, round_trips: int) -> np.ndarray:
     """The control periods' measurements (P, 6) ``(E, M, alpha[4])`` of ``/laser/state``
     messages (n, 10) in the recorded order: the mean E and M of each period's last
-    ``round_trips`` round trips at its angles (:class:`PeriodMeasurement`)."""
+    ``round_trips`` round trips at its angles (:class:`PeriodMeasurement` without the
+    commands: every period, as with servos that reach a command at once)."""
     states = np.asarray(states, float)
     states = states[np.isfinite(states).all(axis=1)]
     states = states[np.argsort(states[:, 0], kind='stable')]
@@ -79,6 +80,7 @@ def period_rows(states: np.ndarray, period: int, round_trips: int) -> np.ndarray
             row = periods.add(r, itf.measured_state(state))
             if row is not None:
                 rows.append(row)
+                periods.command(None)  # the bag's commands are not read
     return np.asarray(rows, float).reshape(-1, 6)
 
 

@@ -96,12 +96,15 @@ def test_a_period_measurement_averaging_its_round_trips_divides_the_noise():
 
 def test_a_run_records_how_its_measurements_were_formed_so_a_replay_forms_them_alike():
     from dlmpc_ros.control.esc import ESCController
+    from dlmpc_ros.core.bench import BenchConfig
     from dlmpc_ros.evaluation.closed_loop import replay_decisions
     scenario = make_scenario('constant', offset=0.1)
     for n in (1, 4):                    # no meta given: the loop records its own
         record = run_closed_loop(ESCController(np.zeros(4)), scenario, 200, 10,
                                  np.zeros(4), SMALL, measurement_round_trips=n)
-        assert record.meta == {'period': 10, 'measurement_round_trips': n}
+        assert record.meta == {'period': 10, 'measurement_round_trips': n,
+                               'settle_tolerance': 0.005, 'settle_timeout': 100,
+                               'bench': BenchConfig().to_dict()}
         steps = replay_decisions(ESCController(np.zeros(4)), record)
         commanded = record.angles[record.control_round_trip[:-1]]
         np.testing.assert_array_equal(np.stack([s.angles for s in steps[:-1]]), commanded)
