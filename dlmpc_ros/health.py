@@ -17,6 +17,7 @@ The keys of every node are listed in ``docs/interfaces.md``.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -132,6 +133,43 @@ def controller_health(findings: Findings, mode: str | None, objective: float | N
                                                    else estimate_age_periods)
     doing = f'mode {mode}, {commands} commands' if mode else 'waiting for the first period'
     return findings.health(doing)
+
+
+class SettleWatch:
+    """How fast a controller's commands are reached: the settle times [round trips] of
+    its latest moves, and the decisions it had to make before its servos settled."""
+
+    def __init__(self, keep: int = 50) -> None:
+        self.times: deque[int] = deque(maxlen=keep)
+        self.unsettled = 0
+        self._window = CounterWindow()
+
+    def add(self, settled: bool, settle_round_trips: int | None) -> None:
+        """One decision: whether its measurement was settled, and the settle time of the
+        command before it (None: it did not move the servos, or was not reached)."""
+        if settle_round_trips is not None:
+            self.times.append(settle_round_trips)
+        self.unsettled += not settled
+
+    def report(self, findings: Findings, timeout: int, tolerance: float) -> None:
+        """Add the settle times to ``findings``; warn about decisions made unsettled
+        since the last report, with the measured settle time and what to set."""
+        median = float(sorted(self.times)[len(self.times) // 2]) if self.times else None
+        longest = max(self.times) if self.times else None
+        findings.values.update(
+            settle_round_trips_median='none yet' if median is None else median,
+            settle_round_trips_max='none yet' if longest is None else longest,
+            decisions_unsettled=self.unsettled)
+        fresh = self._window.delta({'unsettled': self.unsettled})['unsettled']
+        if fresh:
+            measured = ('no command was reached yet' if median is None else
+                        f'commands were reached after {median:g} round trips (median), '
+                        f'{longest} at most')
+            findings.warnings.append(
+                f'{fresh} decisions made before the servos reached the command within '
+                f'settle_timeout = {timeout} round trips ({measured}); set settle_timeout '
+                f'above the settle time, or settle_tolerance above the encoder\'s noise if '
+                f'the reported angles scatter more than {tolerance:g} rad')
 
 
 def _text(value: object) -> str:

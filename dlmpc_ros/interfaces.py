@@ -23,6 +23,8 @@ TOPIC_LASER_STATUS = '/laser/status'
 TOPIC_ESTIMATE = '/estimator/birefringence'
 #: What the controller decided in each control period.
 TOPIC_CONTROLLER_STATUS = '/controller/status'
+#: The measurement each decision is made on (the estimator reads it).
+TOPIC_MEASUREMENT = '/controller/measurement'
 #: Every node's health once a second (diagnostic_msgs/DiagnosticArray; keys in
 #: docs/interfaces.md, levels in :mod:`dlmpc_ros.health`).
 TOPIC_DIAGNOSTICS = '/diagnostics'
@@ -52,6 +54,14 @@ ESTIMATE_FIELDS = ('round_trip', 'surrogate', 'latency_ms')
 CONTROLLER_STATUS_FIELDS = ('round_trip', 'mode', 'prediction_error', 'iterations',
                             'latency_ms', 'surrogate', 'surrogate_valid', 'estimator_age')
 
+#: /controller/measurement, one per decision: the decision's round trip, the mean E and M
+#: of its settled states and their angles; settled is 1, or 0 when the decision came at
+#: the settle timeout before the servos reached the command (then E, M and the angles are
+#: the latest state's); settle_round_trips is the round trips from the previous decision
+#: to the first state at its command, -1 when it did not move the servos or was not
+#: reached.
+MEASUREMENT_FIELDS = ('round_trip', 'E', 'M', *ANGLE_FIELDS, 'settled', 'settle_round_trips')
+
 FIELDS = {
     TOPIC_STATE: STATE_FIELDS,
     TOPIC_OBJECTIVE: OBJECTIVE_FIELDS,
@@ -59,6 +69,7 @@ FIELDS = {
     TOPIC_BIREFRINGENCE: BIREFRINGENCE_FIELDS,
     TOPIC_SIM_TRUTH: SIM_TRUTH_FIELDS,
     TOPIC_LASER_STATUS: LASER_STATUS_FIELDS,
+    TOPIC_MEASUREMENT: MEASUREMENT_FIELDS,
 }
 
 
@@ -98,6 +109,15 @@ def state_fault(data: Sequence[float]) -> str | None:
     """What is wrong with a /laser/state vector (lengths, non-finite values, a round trip
     that is not a count in 0..MAX_ROUND_TRIP), or None."""
     fault = vector_fault(data, STATE_FIELDS, 1e300)
+    if fault is None and not (0 <= data[0] <= MAX_ROUND_TRIP and data[0] == int(data[0])):
+        fault = f'round_trip = {data[0]} is not a count'
+    return fault
+
+
+def measurement_fault(data: Sequence[float]) -> str | None:
+    """What is wrong with a /controller/measurement vector (lengths, non-finite values,
+    a round trip that is not a count), or None."""
+    fault = vector_fault(data, MEASUREMENT_FIELDS, 1e300)
     if fault is None and not (0 <= data[0] <= MAX_ROUND_TRIP and data[0] == int(data[0])):
         fault = f'round_trip = {data[0]} is not a count'
     return fault

@@ -186,3 +186,40 @@ class Bench:
 
 def _quantize(values: np.ndarray, step: float) -> np.ndarray:
     return values if step <= 0 else np.round(values / step) * step
+
+
+#: Named benches: the servos of the stress suite and the lab bench of the bench issue
+#: (a motorized mount's lag and slew, its encoder's noise, a detector's 1 % noise).
+BENCH_PRESETS: dict[str, dict[str, float]] = {
+    'ideal': {},
+    'servo-3': {'servo_lag': 3, 'slew_rate': 0.1},
+    'servo-6': {'servo_lag': 6, 'slew_rate': 0.04},
+    'lab': {'servo_lag': 6, 'slew_rate': 0.04, 'encoder_noise': 0.001,
+            'detector_noise': 0.01},
+}
+
+
+def parse_bench(items: list[str]) -> BenchConfig:
+    """A bench from ``PRESET`` names (:data:`BENCH_PRESETS`) and ``KEY=VALUE`` settings,
+    later items overriding earlier ones; ValueError naming a bad item."""
+    values: dict[str, float] = {}
+    for item in items:
+        key, sep, text = item.partition('=')
+        if not sep:
+            if item not in BENCH_PRESETS:
+                raise ValueError(f'unknown bench {item!r}: use one of '
+                                 f'{", ".join(BENCH_PRESETS)} or KEY=VALUE with KEY one of '
+                                 f'{", ".join(BENCH_FIELDS)}')
+            values.update(BENCH_PRESETS[item])
+            continue
+        if key not in BENCH_FIELDS:
+            raise ValueError(f'unknown bench setting {key!r}; known: {", ".join(BENCH_FIELDS)}')
+        try:
+            number = float(text)
+        except ValueError:
+            raise ValueError(f'bench setting {key} must be a number, got {text!r}') from None
+        integer = isinstance(getattr(BenchConfig(), key), int)
+        if integer and number != int(number):
+            raise ValueError(f'bench setting {key} must be an integer, got {text!r}')
+        values[key] = int(number) if integer else number
+    return BenchConfig(**values)

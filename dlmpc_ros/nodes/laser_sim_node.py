@@ -7,7 +7,16 @@ only, ``/laser/sim_truth`` ``[round_trip, K]`` (the K that round trip ran with);
 run in a worker thread, free-running or paced by ``round_trips_per_second``; commands take
 effect from the next round trip.
 
-Lockstep (for reproducible runs, simulator only): with ``lockstep_period`` P > 0 the
+The bench (off by default: ``core/bench.py``): servos that start ``servo_lag`` round
+trips after a command and turn at most ``slew_rate`` rad per round trip, with
+``backlash``; encoders that report the drive's angles with ``encoder_noise`` and
+``encoder_resolution``; detectors whose E and M carry ``detector_noise``,
+``detector_resolution`` and ``detector_saturation``, M refreshed every
+``spectrum_refresh`` round trips. /laser/state then carries what they report (O = E / M,
+energy and peak scaled as E's reading), /laser/sim_truth still the true K.
+
+Lockstep (for reproducible runs, simulator only, with servos that reach a command on the
+next round trip): with ``lockstep_period`` P > 0 the
 laser waits after every round trip r with r % P == 0 until a new angle command arrives,
 and with ``lockstep_birefringence`` after every round trip until a new K arrives; after
 ``lockstep_timeout`` seconds it warns and goes on, so a dead controller never freezes it.
@@ -26,6 +35,8 @@ from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
 from dlmpc_ros import interfaces as itf
+from dlmpc_ros.core.bench import BENCH_FIELDS, Bench, BenchConfig
+from dlmpc_ros.core.bench import RANGES as BENCH_RANGES
 from dlmpc_ros.core.cavity import INITIAL_CONDITIONS, Cavity
 from dlmpc_ros.core.config import RANGES as CAVITY_RANGES
 from dlmpc_ros.core.config import CavityConfig, config_problems
@@ -36,7 +47,7 @@ from dlmpc_ros.ros.io import QOS, vector_message
 
 CAVITY_NAMES = tuple(f.name for f in fields(CavityConfig))
 DEFAULTS: dict[str, object] = {
-    **CavityConfig().to_dict(),
+    **CavityConfig().to_dict(), **BenchConfig().to_dict(),
     'initial_angles': [-0.39, -0.25, 0.52, -0.14], 'initial_birefringence': 0.1,
     'initial': 'sech', 'seed': 0, 'round_trips_per_second': 0.0, 'max_round_trips': 0,
     'angle_limit': 2 * math.pi, 'birefringence_limit': 1.0, 'wait_for_subscribers': 0,
@@ -72,14 +83,27 @@ DESCRIPTIONS = {
                        'lockstep_period == 0 (0: free-run)',
     'lockstep_birefringence': 'wait for a K message after every round trip',
     'lockstep_timeout': 'time to wait in lockstep before warning and going on [s]',
+    'servo_lag': 'bench: round trips between a command and the servos starting to move',
+    'slew_rate': 'bench: largest angle change of a servo per round trip [rad]; 0: no limit',
+    'backlash': 'bench: play of each mount [rad]; the optic rests up to half of it short '
+                'of the drive after a reversal (the encoder reads the drive)',
+    'encoder_noise': 'bench: standard deviation of the noise on each reported angle [rad]',
+    'encoder_resolution': 'bench: step of the reported angles [rad]; 0: continuous',
+    'detector_noise': 'bench: relative standard deviation of the noise on each E and M '
+                      'reading (energy and peak carry E\'s factor)',
+    'detector_resolution': 'bench: step of the reported E and M [model units]; 0: '
+                           'continuous',
+    'detector_saturation': 'bench: largest E the detector reports; 0: no ceiling',
+    'spectrum_refresh': 'bench: M is read every this many round trips (an optical spectrum '
+                        'analyser\'s sweep) and repeated in between',
 }
 READ_ONLY = frozenset({'points', 'window', 'initial', 'seed', 'initial_angles',
                        'initial_birefringence', 'wait_for_subscribers', 'lockstep_period',
-                       'lockstep_birefringence'})
+                       'lockstep_birefringence', *BENCH_FIELDS})
 #: The values each numeric parameter may take: the cavity's (core.config.RANGES) and the
 #: node's own, all of which the node can run (no overflowing waits, no endless loops).
 RANGES: dict[str, tuple[float, float]] = {
-    **CAVITY_RANGES,
+    **CAVITY_RANGES, **BENCH_RANGES,
     'initial_birefringence': (-1.0, 1.0), 'seed': (0, 2 ** 31 - 1),
     'round_trips_per_second': (0.0, 1e6), 'max_round_trips': (0, 2 ** 53),
     'angle_limit': (0.0, 100.0), 'birefringence_limit': (0.0, 10.0),
@@ -101,6 +125,8 @@ class LaserSimNode(Node):
                              angles=np.array(self.values['initial_angles']),
                              birefringence=self.values['initial_birefringence'],
                              initial=self.values['initial'], seed=self.values['seed'])
+        self.bench = Bench(BenchConfig(**{name: self.values[name] for name in BENCH_FIELDS}),
+                           np.array(self.values['initial_angles']), seed=self.values['seed'])
         self.finished = False
         self.exit_code = 0
         self._lock = threading.Condition()
@@ -151,6 +177,17 @@ class LaserSimNode(Node):
             value, (low, high) = values[name], RANGES[name]
             if not (math.isfinite(value) and low <= value <= high):
                 problems.append(f'{name} must be in [{low:g}, {high:g}], got {value}')
+        try:
+            bench = BenchConfig(**{name: values[name] for name in BENCH_FIELDS})
+        except ValueError as err:
+            problems.append(str(err))
+        else:
+            if values['lockstep_period'] > 0 and not bench.instant_servos:
+                problems.append('lockstep_period needs servos that reach a command at once '
+                                '(servo_lag, slew_rate and backlash 0): with slower ones the '
+                                'controller decides when its command is reached, which the '
+                                'laser cannot wait for; run free or paced '
+                                '(round_trips_per_second)')
         rate = values['round_trips_per_second']
         if 0 < rate < MIN_RATE:
             problems.append(f'round_trips_per_second must be 0 (free-run) or >= {MIN_RATE:g}, '
@@ -244,7 +281,9 @@ class LaserSimNode(Node):
         if 'config' in pending:
             self.cavity.config = pending['config']
         if 'angles' in pending:
-            self.cavity.set_angles(pending['angles'])
+            self.bench.command(pending['angles'])
+        if 'angles' in pending or not self.bench.config.instant_servos:
+            self.cavity.set_angles(self.bench.advance())
         if 'birefringence' in pending:
             self.cavity.set_birefringence(pending['birefringence'])
 
@@ -281,14 +320,12 @@ class LaserSimNode(Node):
                 with self._lock:
                     self.counts['resets'] += 1
                 continue
-            row = result.laser(0)
-            state = [row['round_trip'], row['E'], row['M'], row['O'], row['energy'],
-                     row['peak'], *self.cavity.angles[0]]
-            self._truth_pub.publish(vector_message(itf.SIM_TRUTH_FIELDS, [row['round_trip'], k]))
+            state = self._reading(result.laser(0))
+            self._truth_pub.publish(vector_message(itf.SIM_TRUTH_FIELDS, [state[0], k]))
             self._state_pub.publish(vector_message(itf.STATE_FIELDS, state))
-            self._objective_pub.publish(vector_message(itf.OBJECTIVE_FIELDS, [row['O']]))
+            self._objective_pub.publish(vector_message(itf.OBJECTIVE_FIELDS, [state[3]]))
             period = self.values['lockstep_period']
-            if period > 0 and row['round_trip'] % period == 0:
+            if period > 0 and state[0] % period == 0:
                 self._wait_for('commands_received', seen_angles)
             if self.values['lockstep_birefringence']:
                 self._wait_for('birefringence_received', seen_k)
@@ -296,6 +333,17 @@ class LaserSimNode(Node):
             if rate > 0:
                 next_time = max(next_time + 1.0 / rate, time.monotonic() - 1.0)
                 self._stop.wait(max(0.0, next_time - time.monotonic()))
+
+    def _reading(self, row: dict) -> list[float]:
+        """The /laser/state of a round trip's true values, as the bench reports them."""
+        if self.bench.config.ideal:
+            return [row['round_trip'], row['E'], row['M'], row['O'], row['energy'],
+                    row['peak'], *self.cavity.angles[0]]
+        e, m, peak = self.bench.read_detectors(row['round_trip'], row['E'], row['M'],
+                                               row['peak'])
+        scale = (e / row['E']) ** 2 if row['E'] > 0 else 1.0
+        return [row['round_trip'], e, m, e / m if m > 0 else 0.0, row['energy'] * scale,
+                peak, *self.bench.read_angles()]
 
     def drain(self, executor) -> None:
         """Take the commands and K still queued once the round trips have ended, so

@@ -1,11 +1,11 @@
-"""vae_estimator: the VAE's K surrogate from what is measured, once per control period.
+"""vae_estimator: the VAE's K surrogate from what is measured, once per decision.
 
-Subscribes ``/laser/state``; for every round trip r with r % period == 0 it feeds the
-measurement ``(E, M, alpha[4])`` (the controller's: E and M averaged over the last
-``measurement_round_trips`` round trips at the period's angles) to the VAE encoder and
-publishes
-``/estimator/birefringence`` ``[r, surrogate, latency_ms, latent mean...]``. The
-surrogate is a coordinate of the latent space that tracks K, not K in K's units.
+Subscribes ``/controller/measurement``, the measurement ``(E, M, alpha[4])`` each of the
+controller's decisions is made on (E and M averaged over its settled round trips, with
+their angles: :mod:`dlmpc_ros.control.period_measurement`), feeds it to the VAE encoder and
+publishes ``/estimator/birefringence`` ``[r, surrogate, latency_ms, latent mean...]`` for
+the same round trip r. The surrogate is a coordinate of the latent space that tracks K,
+not K in K's units.
 """
 
 from __future__ import annotations
@@ -20,60 +20,48 @@ from std_msgs.msg import Float64MultiArray
 
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.control.factory import load_estimator
-from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
-from dlmpc_ros.health import CounterWindow, Findings, Health
+from dlmpc_ros.health import WARN, CounterWindow, Findings, Health
 from dlmpc_ros.learning.model_files import ModelFileError
 from dlmpc_ros.paths import models_dir
 from dlmpc_ros.ros import params
-from dlmpc_ros.ros.controller_base import (COMMON_RANGES, MEASUREMENT_ROUND_TRIPS_DESCRIPTION,
-                                           period_measurement_from)
 from dlmpc_ros.ros.diagnostics import DiagnosticsPublisher
 from dlmpc_ros.ros.io import QOS, vector_message
 
-DEFAULTS: dict[str, object] = {'period': 10, 'models_dir': '',
-                               'measurement_round_trips': MEASUREMENT_ROUND_TRIPS}
-DESCRIPTIONS = {'period': 'control period P [round trips]: one estimate per P round trips',
-                'models_dir': 'directory holding vae_encoder.npz (empty: the installed '
-                              'models/)',
-                'measurement_round_trips': MEASUREMENT_ROUND_TRIPS_DESCRIPTION}
+DEFAULTS: dict[str, object] = {'models_dir': ''}
+DESCRIPTIONS = {'models_dir': 'directory holding vae_encoder.npz (empty: the installed '
+                              'models/)'}
 
 
 class VAEEstimatorNode(Node):
     def __init__(self) -> None:
         super().__init__('vae_estimator')
-        values = params.declare(self, DEFAULTS, DESCRIPTIONS, frozenset(DEFAULTS),
-                                {'period': (1, 1_000_000),
-                                 'measurement_round_trips':
-                                     COMMON_RANGES['measurement_round_trips']})
-        self.periods = period_measurement_from(values)
+        values = params.declare(self, DEFAULTS, DESCRIPTIONS, frozenset(DEFAULTS), {})
         try:
             self.estimator = load_estimator(models_dir(values['models_dir']))
         except (ModelFileError, FileNotFoundError) as err:
             raise params.StartupError(str(err)) from None
         self._warn = itf.RateLimitedLog(self.get_logger().warning)
         self.published = 0
-        self._last_state: float | None = None
+        self._last_measurement: float | None = None
         self._latency_ms = math.nan
         self._drops = CounterWindow()
         self._diagnostics = DiagnosticsPublisher(self, self._health)
         self._pub = self.create_publisher(Float64MultiArray, itf.TOPIC_ESTIMATE,
                                           QOS[itf.TOPIC_ESTIMATE])
-        self.create_subscription(Float64MultiArray, itf.TOPIC_STATE, self._on_state,
-                                 QOS[itf.TOPIC_STATE])
+        self.create_subscription(Float64MultiArray, itf.TOPIC_MEASUREMENT,
+                                 self._on_measurement, QOS[itf.TOPIC_MEASUREMENT])
         self._fields = [*itf.ESTIMATE_FIELDS,
                         *(f'z{i + 1}' for i in range(self.estimator.encoder.latent))]
 
-    def _on_state(self, msg: Float64MultiArray) -> None:
-        if not itf.usable_state(msg.data, self._warn):
+    def _on_measurement(self, msg: Float64MultiArray) -> None:
+        fault = itf.measurement_fault(msg.data)
+        if fault is not None:
+            self._warn.dropped(itf.TOPIC_MEASUREMENT, fault)
             return
         round_trip = int(msg.data[0])
-        self._last_state = time.monotonic()
-        if not self.periods.wanted(round_trip):
-            return
+        self._last_measurement = time.monotonic()
         started = time.perf_counter()
-        measurement = self.periods.add(round_trip, itf.measured_state(msg.data))
-        if measurement is None:
-            return
+        measurement = np.array(msg.data[1:7], float)
         surrogate, latent = self.estimator.update(measurement)
         if not (np.isfinite(surrogate) and np.isfinite(latent).all()):
             self._warn('nonfinite', f'estimate at round trip {round_trip} is not finite; '
@@ -88,7 +76,8 @@ class VAEEstimatorNode(Node):
         findings.values.update(estimates_published=self.published,
                                latency_ms=self._latency_ms)
         findings.new_drops(self._drops, self._warn)
-        findings.input(itf.TOPIC_STATE, self._last_state, self._diagnostics.started, now)
+        findings.input(itf.TOPIC_MEASUREMENT, self._last_measurement,
+                       self._diagnostics.started, now, silent_level=WARN)
         return findings.health(f'{self.published} estimates published')
 
     def stop(self) -> None:

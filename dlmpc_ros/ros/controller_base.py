@@ -1,15 +1,20 @@
-"""What both controller nodes share: one decision per control period of /laser/state.
+"""What both controller nodes share: a decision at most once per control period of
+/laser/state, on states taken at the angles it commanded.
 
-A state message whose round trip r has r % period == 0 becomes the pending measurement:
-its angles and the mean E and M of the last ``measurement_round_trips`` states at those
-angles (:class:`~dlmpc_ros.control.period_measurement.PeriodMeasurement`).
-A node that uses the estimator acts once the estimate of the same round trip arrives, or
-after ``estimator_timeout`` seconds without it (the controller then gets no surrogate and
-says so on its status, ``estimator_age`` = periods since the last estimate). A period is
-never skipped: when the next period's state arrives before the pending period's estimate,
-the pending one is acted on at once without it, because the controller's histories assume
-one row per period. It publishes the angles on /laser/angles_cmd and the decision on
-/controller/status.
+A decision is due at least ``period`` round trips after the last one, once the reported
+angles have been within ``settle_tolerance`` of the last command for the round trips a
+measurement averages, or ``settle_timeout`` round trips after the last decision whatever
+they are (:class:`~dlmpc_ros.control.period_measurement.PeriodMeasurement`): its
+measurement, the mean E and M of the last ``measurement_round_trips`` settled states with
+their angles, is published on /controller/measurement (what the estimator reads). A node
+that uses the estimator acts once the estimate of the same round trip arrives, or after
+``estimator_timeout`` seconds without it (the controller then gets no surrogate and says
+so on its status, ``estimator_age`` = periods since the last estimate). A decision is
+never skipped: when a period has passed since the pending decision and its estimate has
+not come, the pending one is acted on at once without it, because the controller's
+histories assume one row per decision. It publishes the angles on /laser/angles_cmd and
+the decision on /controller/status; /diagnostics carries the measured settle time of its
+commands and warns when decisions had to be made before the servos settled.
 """
 
 from __future__ import annotations
@@ -23,9 +28,11 @@ from std_msgs.msg import Float64MultiArray
 
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS, PeriodMeasurement
+from dlmpc_ros.control.period_measurement import (MEASUREMENT_ROUND_TRIPS, SETTLE_TIMEOUT,
+                                                  SETTLE_TOLERANCE, PeriodMeasurement)
 from dlmpc_ros.control.step import Controller, ControlStep
-from dlmpc_ros.health import ERROR, WARN, CounterWindow, Findings, Health, controller_health
+from dlmpc_ros.health import (ERROR, WARN, CounterWindow, Findings, Health, SettleWatch,
+                              controller_health)
 from dlmpc_ros.ros import params
 from dlmpc_ros.ros.diagnostics import DiagnosticsPublisher
 from dlmpc_ros.ros.io import QOS, vector_message
@@ -40,9 +47,10 @@ COMMON_DEFAULTS: dict[str, object] = {
     'max_step': AngleLimits.max_step,
     'models_dir': '', 'estimator_timeout': 0.5,
     'measurement_round_trips': MEASUREMENT_ROUND_TRIPS,
+    'settle_tolerance': SETTLE_TOLERANCE, 'settle_timeout': SETTLE_TIMEOUT,
 }
 COMMON_DESCRIPTIONS = {
-    'period': 'control period P [round trips]: one decision per P round trips',
+    'period': 'control period P [round trips]: the least time between two decisions',
     'angle_low': 'lowest angle the servos may be sent to [rad]',
     'angle_high': 'highest angle the servos may be sent to [rad]',
     'max_step': 'largest angle change per control period [rad] (servo speed)',
@@ -50,6 +58,10 @@ COMMON_DESCRIPTIONS = {
     'estimator_timeout': 'seconds to wait for the estimate of a period before acting '
                          'without it',
     'measurement_round_trips': MEASUREMENT_ROUND_TRIPS_DESCRIPTION,
+    'settle_tolerance': 'a state counts for a decision once every reported angle is within '
+                        'this of the command [rad] (above the encoder\'s noise and step)',
+    'settle_timeout': 'round trips after a decision by which the next one is made even if '
+                      'the servos have not settled (with a warning)',
 }
 
 #: Ranges (``ros2 param describe`` shows them; rclpy refuses values outside).
@@ -57,14 +69,21 @@ COMMON_RANGES: dict[str, tuple[float, float]] = {
     'period': (1, 1_000_000), 'angle_low': (-1e3, 1e3), 'angle_high': (-1e3, 1e3),
     'max_step': (1e-9, 1e3), 'estimator_timeout': (1e-3, 3600.0),
     'measurement_round_trips': (1, 10_000),  # the states a period keeps for its mean
+    'settle_tolerance': (0.0, 1.0), 'settle_timeout': (1, 1_000_000_000),
 }
 
 
+#: Longest wait at start for the estimator to read /controller/measurement [s].
+ESTIMATOR_WAIT = 3.0
+
+
 def period_measurement_from(values: dict) -> PeriodMeasurement:
-    """The node's :class:`PeriodMeasurement` from its ``period`` and
-    ``measurement_round_trips`` parameters; StartupError naming the problem."""
+    """The node's :class:`PeriodMeasurement` from its ``period``,
+    ``measurement_round_trips``, ``settle_tolerance`` and ``settle_timeout`` parameters;
+    StartupError naming the problem."""
     try:
-        return PeriodMeasurement(values['period'], values['measurement_round_trips'])
+        return PeriodMeasurement(values['period'], values['measurement_round_trips'],
+                                 values['settle_tolerance'], values['settle_timeout'])
     except ValueError as err:
         raise params.StartupError(str(err)) from None
 
@@ -111,19 +130,40 @@ class ControllerNodeBase(Node):
         self._last_objective: float | None = None
         self._estimate_age: float | None = None
         self._drops = CounterWindow()
+        self._settling = SettleWatch()
 
     def start(self) -> None:
         self._cmd_pub = self.create_publisher(Float64MultiArray, itf.TOPIC_ANGLES_CMD,
                                               QOS[itf.TOPIC_ANGLES_CMD])
         self._status_pub = self.create_publisher(Float64MultiArray, itf.TOPIC_CONTROLLER_STATUS,
                                                  QOS[itf.TOPIC_CONTROLLER_STATUS])
-        self.create_subscription(Float64MultiArray, itf.TOPIC_STATE, self._on_state,
-                                 QOS[itf.TOPIC_STATE])
+        self._measurement_pub = self.create_publisher(Float64MultiArray, itf.TOPIC_MEASUREMENT,
+                                                      QOS[itf.TOPIC_MEASUREMENT])
         if self.uses_estimator:
             self.create_subscription(Float64MultiArray, itf.TOPIC_ESTIMATE, self._on_estimate,
                                      QOS[itf.TOPIC_ESTIMATE])
+            # read the laser once the estimator reads the measurements (or after a wait),
+            # so that the first decision does not wait for an estimate that cannot come
+            waiting_since = time.monotonic()
+
+            def subscribe_when_heard() -> None:
+                heard = self._measurement_pub.get_subscription_count() > 0
+                if heard or time.monotonic() - waiting_since > ESTIMATOR_WAIT:
+                    if not heard:
+                        self.get_logger().warning(
+                            f'no estimator reads {itf.TOPIC_MEASUREMENT} after '
+                            f'{ESTIMATOR_WAIT:g} s; controlling without it until it does')
+                    self._subscription_timer.cancel()
+                    self._subscribe_state()
+            self._subscription_timer = self.create_timer(0.02, subscribe_when_heard)
+        else:
+            self._subscribe_state()
         self.create_timer(0.02, self._check_timeout)
         self._diagnostics = DiagnosticsPublisher(self, self._health)
+
+    def _subscribe_state(self) -> None:
+        self.create_subscription(Float64MultiArray, itf.TOPIC_STATE, self._on_state,
+                                 QOS[itf.TOPIC_STATE])
 
     def _health(self, findings: Findings, now: float) -> Health:
         findings.new_drops(self._drops, self._warn)
@@ -132,6 +172,8 @@ class ControllerNodeBase(Node):
         if self.uses_estimator:  # the controller holds without it: a warning
             findings.input(itf.TOPIC_ESTIMATE, self._last_estimate, started, now,
                            silent_level=WARN)
+        self._settling.report(findings, self.values['settle_timeout'],
+                              self.values['settle_tolerance'])
         supervisor = getattr(self.controller, 'acquisition', None)
         return controller_health(findings, self._last_mode, self._last_objective,
                                  getattr(supervisor, 'threshold', None), self.steps,
@@ -144,16 +186,18 @@ class ControllerNodeBase(Node):
         round_trip = int(msg.data[0])
         if round_trip == self._last_acted or not self._periods.wanted(round_trip):
             return None
+        if self._pending is not None and round_trip >= int(self._pending[0]) + self.period:
+            self._act(None, why="before the next period's state")  # the next may be due
         measurement = self._periods.add(round_trip, itf.measured_state(msg.data))
         if measurement is None:
             return None
-        if self._pending is not None:
-            if round_trip == int(self._pending[0]):
-                return None  # a repeat of the state that waits for its estimate
-            self._act(None, why="before the next period's state")  # answer it now
         self._pending_since = self.get_clock().now().nanoseconds * 1e-9
         self._pending = np.array(msg.data, float)
         self._pending_measurement = measurement
+        settled, settle = self._periods.settled, self._periods.settle_round_trips
+        self._settling.add(settled, settle)
+        self._measurement_pub.publish(vector_message(itf.MEASUREMENT_FIELDS, [
+            round_trip, *measurement, float(settled), -1.0 if settle is None else settle]))
         self._try_act()
         return None
 
@@ -216,6 +260,7 @@ class ControllerNodeBase(Node):
             step = ControlStep(angles=self.limits.apply(measurement[2:6], measurement[2:6]),
                                mode='hold')
             self.controller = self.fresh_controller()
+        self._periods.command(step.angles)
         self._cmd_pub.publish(vector_message(itf.ANGLE_FIELDS, step.angles))
         age = -1.0 if self._last_estimate_round_trip is None else (
             (round_trip - self._last_estimate_round_trip) / self.period)

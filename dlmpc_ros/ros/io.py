@@ -18,6 +18,7 @@ topic                         history             promise
 /laser/birefringence          keep last 10000     every K reaches the simulator (likewise)
 /estimator/birefringence      keep last 10000     one per control period, none missed
 /controller/status            keep last 10000     same
+/controller/measurement       keep last 10000     one per decision, none missed
 /laser/status                 keep last 10        once a second; only the newest matters
 /diagnostics                  keep last 10        likewise (diagnostic_msgs/DiagnosticArray,
                                                   every node; not in :data:`QOS`, whose
@@ -53,6 +54,7 @@ QOS = {
     interfaces.TOPIC_LASER_STATUS: STATUS_QOS,
     interfaces.TOPIC_ESTIMATE: STREAM_QOS,
     interfaces.TOPIC_CONTROLLER_STATUS: STREAM_QOS,
+    interfaces.TOPIC_MEASUREMENT: STREAM_QOS,
 }
 
 

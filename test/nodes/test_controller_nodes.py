@@ -30,17 +30,21 @@ def _state(round_trip, e=3.2, m=18.0, angles=ANGLES):
     return [round_trip, e, m, e / m, e, 1.0, *angles]
 
 
-def _periods(probe, status, ends, period=10, estimate=True, **state):
+def _periods(probe, status, ends, period=10, estimate=True, commands=(), **state):
     """Publish each control period's states (its estimate first) and wait for its decision,
-    so that every decision sees its own estimate however slow the machine is."""
+    so that every decision sees its own estimate however slow the machine is. The states
+    report the latest of ``commands`` as their angles (a laser whose servos are instant)."""
     for end in ends:
         if estimate:
             probe.publish(itf.TOPIC_ESTIMATE, [end, 0.2, 0.5, 0.2, 0.1])
+        angles = list(commands[-1].data) if commands else ANGLES
         for r in range(end - period + 1, end + 1):
-            probe.publish(itf.TOPIC_STATE, _state(r, **state), itf.STATE_FIELDS)
+            probe.publish(itf.TOPIC_STATE, _state(r, angles=angles, **state),
+                          itf.STATE_FIELDS)
         due = len(status) + 1
-        probe.spin_until(lambda due=due: len(status) >= due, 60,
-                         f'the decision at round trip {end}')
+        probe.spin_until(lambda due=due: len(status) >= due and (
+            not isinstance(commands, list) or len(commands) >= due), 60,
+            f'the decision at round trip {end}')
 
 
 def _start(module, ros_env, tmp_path, *params):
@@ -51,7 +55,9 @@ def _start(module, ros_env, tmp_path, *params):
 
 
 def _start_mpc(probe, ros_env, tmp_path, *params) -> NodeProcess:
-    """The DL-MPC controller node, once it reads the probe's states and estimates."""
+    """The DL-MPC controller node, once it reads the probe's states and estimates (the
+    probe reads its measurements, as the estimator would)."""
+    probe.listen(itf.TOPIC_MEASUREMENT)
     node = _start(MPC, ros_env, tmp_path, 'period:=10', *params)
     try:
         probe.wait_matched(itf.TOPIC_STATE)
@@ -62,45 +68,64 @@ def _start_mpc(probe, ros_env, tmp_path, *params) -> NodeProcess:
     return node
 
 
-def test_estimator_publishes_one_finite_estimate_per_period_and_drops_bad_states(
-        ros_env, tmp_path, probe):
+def _measurement(round_trip, e=3.2, m=18.0, angles=ANGLES):
+    return [round_trip, e, m, *angles, 1.0, -1.0]
+
+
+def test_estimator_estimates_each_measurement_and_drops_bad_ones(ros_env, tmp_path, probe):
+    from dlmpc_ros.control.factory import load_estimator
+    from dlmpc_ros.paths import models_dir
     estimates = probe.listen(itf.TOPIC_ESTIMATE)
-    node = _start(ESTIMATOR, ros_env, tmp_path, 'period:=5')
+    node = _start(ESTIMATOR, ros_env, tmp_path)
     try:
-        probe.wait_matched(itf.TOPIC_STATE)
-        for bad in ([], [1.0, 2.0], [5, math.nan, 1, 1, 1, 1, 0, 0, 0, 0],
-                    [5.5, *_state(0)[1:]], [-5, *_state(0)[1:]]):
-            probe.publish(itf.TOPIC_STATE, bad)
-        for r in range(1, 31):
-            probe.publish(itf.TOPIC_STATE, _state(r), itf.STATE_FIELDS)
+        probe.wait_matched(itf.TOPIC_MEASUREMENT)
+        for bad in ([], [1.0, 2.0], [5, math.nan, *_measurement(0)[2:]],
+                    [5.5, *_measurement(0)[1:]], [-5, *_measurement(0)[1:]]):
+            probe.publish(itf.TOPIC_MEASUREMENT, bad)
+        energies = (2.0, 2.5, 3.0, 3.5, 4.0, 2.0)
+        for r, e in zip((10, 23, 30, 47, 57, 67), energies):  # decisions come when due
+            probe.publish(itf.TOPIC_MEASUREMENT, _measurement(r, e=e), itf.MEASUREMENT_FIELDS)
         probe.spin_until(lambda: len(estimates) >= 6, 60, '6 estimates')
         rows = [list(m.data) for m in estimates]
-        assert [row[0] for row in rows] == [5, 10, 15, 20, 25, 30]
+        assert [row[0] for row in rows] == [10, 23, 30, 47, 57, 67]
         assert all(map(math.isfinite, sum(rows, [])))
         assert estimates[0].layout.dim[0].label.startswith('round_trip,surrogate,latency_ms,z1')
         assert node.proc.poll() is None
     finally:
         assert node.stop() == 0
-    assert 'dropped a message on /laser/state' in node.output()
+    assert 'dropped a message on /controller/measurement' in node.output()
+    expected = load_estimator(models_dir())
+    for row, e in zip(rows, energies):
+        surrogate, _ = expected.update(np.array([e, 18.0, *ANGLES]))
+        assert row[1] == pytest.approx(surrogate, rel=1e-5)
 
 
-def test_estimator_reads_the_mean_of_the_periods_last_round_trips(ros_env, tmp_path, probe):
-    from dlmpc_ros.control.factory import load_estimator
-    from dlmpc_ros.paths import models_dir
-    estimates = probe.listen(itf.TOPIC_ESTIMATE)
-    node = _start(ESTIMATOR, ros_env, tmp_path, 'period:=5', 'measurement_round_trips:=3')
+def test_a_decision_waits_until_the_reported_angles_reach_the_command(
+        ros_env, tmp_path, probe):
+    commands = probe.listen(itf.TOPIC_ANGLES_CMD)
+    measurements = probe.listen(itf.TOPIC_MEASUREMENT)
+    node = _start(BASELINE, ros_env, tmp_path, 'controller:=fixed_best', 'period:=10',
+                  'measurement_round_trips:=3', 'settle_timeout:=1000')
     try:
         probe.wait_matched(itf.TOPIC_STATE)
-        energies = [2.0, 2.5, 3.0, 3.5, 4.0, 2.0, 2.2, 2.4, 2.6, 2.8]
-        for r, e in enumerate(energies, start=1):
-            probe.publish(itf.TOPIC_STATE, _state(r, e=e), itf.STATE_FIELDS)
-        probe.spin_until(lambda: len(estimates) >= 2, 60, '2 estimates')
+        for r in range(1, 11):
+            probe.publish(itf.TOPIC_STATE, _state(r), itf.STATE_FIELDS)
+        probe.spin_until(lambda: len(commands) >= 1, 30, 'the first command')
+        target = list(commands[0].data)
+        assert np.abs(np.array(target) - ANGLES).max() > 0.01  # the servos must move
+        # the servos start late: at the old angles until round trip 24, then at the command
+        # within the encoder's noise; the decision is due once 3 round trips are at it
+        for r in range(11, 30):
+            angles = ANGLES if r < 25 else [a + 0.001 * (-1) ** r for a in target]
+            probe.publish(itf.TOPIC_STATE, _state(r, e=float(r), angles=angles),
+                          itf.STATE_FIELDS)
+        probe.spin_until(lambda: len(measurements) >= 2, 30, 'the second decision')
+        second = list(measurements[1].data)
+        assert second[0] == 27 and second[1] == pytest.approx(26.0)  # round trips 25-27
+        assert second[3:7] == pytest.approx(target, abs=0.0011)
+        assert second[7:] == [1.0, 15.0]  # settled, 15 round trips after the decision
     finally:
         assert node.stop() == 0
-    expected = load_estimator(models_dir())
-    for row, e in zip(estimates, (3.5, 2.6)):  # round trips 3-5 and 8-10
-        surrogate, _ = expected.update(np.array([e, 18.0, *ANGLES]))
-        assert row.data[1] == pytest.approx(surrogate, rel=1e-5)
 
 
 def test_mpc_controller_acts_each_period_holds_without_estimator_and_never_reads_true_k(
@@ -115,19 +140,21 @@ def test_mpc_controller_acts_each_period_holds_without_estimator_and_never_reads
             'mpc_controller', '/')}
         assert topics == {itf.TOPIC_STATE, itf.TOPIC_ESTIMATE}
         # With estimates: the inner loop maps the surrogate to angles, one step at a time.
-        _periods(probe, status, [10, 20, 30])
+        _periods(probe, status, [10, 20, 30], commands=commands)
         rows = [list(m.data) for m in status]
         assert [row[0] for row in rows] == [10, 20, 30]
         assert [MODES[int(row[1])] for row in rows] == ['inner'] * 3
         assert all(row[6] == 1.0 and row[5] == pytest.approx(0.2) for row in rows)
-        for m in commands:
-            assert np.abs(np.array(m.data) - ANGLES).max() <= 0.1 + 1e-9
+        for before, m in zip([ANGLES, *(c.data for c in commands)], commands):
+            assert np.abs(np.array(m.data) - before).max() <= 0.1 + 1e-9
         # A silent estimator: the controller acts after the timeout, holds, and says so.
-        probe.publish(itf.TOPIC_STATE, _state(40), itf.STATE_FIELDS)
+        held = list(commands[-1].data)
+        for r in range(31, 41):
+            probe.publish(itf.TOPIC_STATE, _state(r, angles=held), itf.STATE_FIELDS)
         probe.spin_until(lambda: len(status) >= 4, 30, 'a decision without estimate')
         row = list(status[3].data)
         assert MODES[int(row[1])] == 'hold' and row[6] == 0.0 and row[7] == 1.0
-        assert list(commands[-1].data) == pytest.approx(ANGLES)
+        assert list(commands[-1].data) == pytest.approx(held)
         assert all(map(math.isfinite, sum((list(m.data) for m in status), [])))
     finally:
         assert node.stop() == 0
@@ -150,10 +177,10 @@ def test_mpc_controller_tracks_the_curve_once_locked_even_without_estimates(
     try:
         # A locked laser (O = 3.2 / 18 is above the lock level): inner loop, then tracking.
         patience = TrackingConfig().entry_patience
-        _periods(probe, status, range(10, 10 * patience + 1, 10))
+        _periods(probe, status, range(10, 10 * patience + 1, 10), commands=commands)
         # The estimator falls silent: tracking needs no estimate and goes on.
         _periods(probe, status, range(10 * patience + 10, 10 * patience + 31, 10),
-                 estimate=False)
+                 estimate=False, commands=commands)
     finally:
         assert node.stop() == 0
     rows = [list(m.data) for m in status]
@@ -194,10 +221,12 @@ def test_lockstep_laser_waits_for_each_command(ros_env, tmp_path, probe):
 def test_mpc_controller_scans_for_lock_while_the_laser_is_off_its_pulse(
         ros_env, tmp_path, probe, acquire):
     status = probe.listen(itf.TOPIC_CONTROLLER_STATUS)
+    commands = probe.listen(itf.TOPIC_ANGLES_CMD)
     node = _start_mpc(probe, ros_env, tmp_path, 'acquire_patience:=2',
                       f'acquire:={str(acquire).lower()}')
     try:
-        _periods(probe, status, [10, 20, 30, 40, 50], e=0.3, m=30.0)  # O = 0.01: no pulse
+        _periods(probe, status, [10, 20, 30, 40, 50], e=0.3, m=30.0,  # O = 0.01: no pulse
+                 commands=commands)
         modes = [MODES[int(m.data[1])] for m in status]
         assert modes == (['inner'] * 2 + ['acquire'] * 3 if acquire else ['inner'] * 5)
     finally:
