@@ -2,16 +2,19 @@
 
 Starts each node as its own process with its parameter file from ``config/``: the laser
 simulator, the drift injector and the controller chosen by ``--controller`` (``dlmpc``
-adds the VAE estimator). Waits until the graph is connected (state and K messages
-arrive), prints a live status line, optionally writes every round trip (and every
-control decision) to CSV and plots it, and stops after ``--round-trips`` or Ctrl-C.
+adds the VAE estimator; any other name or ``package.module:factory`` runs in the
+baseline_controller node, docs/controllers.md). Waits until the graph is connected
+(state and K messages arrive), prints a live status line, optionally writes every round
+trip (and every control decision) to CSV and plots it, and stops after ``--round-trips``
+or Ctrl-C.
 With ``--respawn`` a node that exits unexpectedly (crash, kill) is restarted, with a line
 on standard error, at most ``--max-restarts`` times a minute; by default every node but
 the laser simulator, whose restart would begin a new run at round trip 1.
 Each node's log is ``<log dir>/<node>.log`` and the pid of its current process is in
 ``<log dir>/<node>.pid`` while the graph runs.
 Exit code: 0 on a clean run, 1 if a node died (and was not restarted) or did not stop
-cleanly, 2 for bad arguments or a graph that never connected.
+cleanly, 2 for bad arguments, a controller that cannot be built or a graph that never
+connected.
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ import numpy as np
 
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.control.factory import CONTROLLERS
+from dlmpc_ros.control.plugins import ControllerSpecError, build
 from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.drift import SCENARIOS, make_scenario, parse_settings
@@ -79,9 +83,11 @@ def controller_nodes(controller: str) -> list[str]:
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog='bringup', description=__doc__.split('\n\n')[0])
-    p.add_argument('--controller', default='dlmpc', choices=CONTROLLER_CHOICES,
-                   help='controller to run (default: %(default)s; oracle reads the true K '
-                        'and is for evaluation only; none: open loop)')
+    p.add_argument('--controller', default='dlmpc', metavar='NAME|MODULE:FACTORY',
+                   help=f'controller to run: one of {", ".join(CONTROLLER_CHOICES)}, another '
+                        'registered name, or package.module:factory (docs/controllers.md) '
+                        '(default: %(default)s; oracle reads the true K and is for '
+                        'evaluation only; none: open loop)')
     p.add_argument('--nodes', default='laser_sim,drift_injector',
                    help='comma-separated simulator-side nodes to start (default: '
                         '%(default)s); leave out laser_sim to run against a hardware driver')
@@ -317,8 +323,31 @@ def claim_domain(domain: int):
     return handle
 
 
+def check_controller(args: argparse.Namespace) -> str | None:
+    """Why the baseline_controller node could not build ``--controller`` (one line), or
+    None: the bringup builds it once itself, so that a bad spec stops it at start."""
+    if 'baseline_controller' not in args.nodes:
+        return None
+    from dlmpc_ros.paths import models_dir
+    given = args.controller_overrides  # what the node gets beside its parameter file
+    initial_k = given.get('initial_birefringence')
+    if initial_k is None and 'drift_injector' in args.nodes:
+        initial_k = float(make_scenario(args.scenario, **args.scenario_settings)(1))
+    angles = given.get('angles')
+    try:
+        build(args.controller, models_dir(args.models_dir or ''), initial_k=initial_k,
+              angles=np.array(angles, float) if isinstance(angles, list) else None)
+    except ControllerSpecError as err:
+        return str(err)
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    problem = check_controller(args)
+    if problem is not None:
+        print(f'bringup: {problem}', file=sys.stderr)
+        return 2
     try:
         lock = claim_domain(args.domain_id)  # noqa: F841 (held until the process ends)
     except ValueError as err:

@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from dlmpc_ros.control.factory import CONTROLLERS
+from dlmpc_ros.control.plugins import ControllerSpecError, build, label
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
 from dlmpc_ros.core.drift import DEFAULTS, parse_settings
@@ -64,8 +65,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help='drift scenario, repeatable (default: sinusoidal)')
     p.add_argument('--scenario-param', action='append', default=[], metavar='KEY=VALUE',
                    help='scenario setting, repeatable; applies to every scenario that takes it')
-    p.add_argument('--controller', action='append', choices=CONTROLLERS,
-                   help='controller, repeatable (default: dlmpc)')
+    p.add_argument('--controller', action='append', metavar='NAME|MODULE:FACTORY',
+                   help=f'controller, repeatable (default: dlmpc): one of '
+                        f'{", ".join(CONTROLLERS)}, another registered name, or '
+                        'package.module:factory (docs/controllers.md)')
     p.add_argument('--seed', action='append', type=int,
                    help='seed of the random initial angles and of random_walk, repeatable '
                         '(default: 1; training used 1000+ and 5000+)')
@@ -256,6 +259,12 @@ def main(argv: list[str] | None = None) -> int:
         if code == 0:
             print(f'dlmpc-evaluate: wrote {args.out}/metrics.json, table.md and figures/')
         return code
+    for spec in args.controller:  # a bad spec stops here, not on every worker
+        try:
+            build(spec, args.models_dir, AngleLimits(max_step=args.max_step), initial_k=0.0)
+        except ControllerSpecError as err:
+            print(f'dlmpc-evaluate: {err}', file=sys.stderr)
+            return 2
     started = time.monotonic()
     try:
         plants = resolve_plants(args, tables, tables_path)
@@ -350,7 +359,7 @@ def _finished(run_dir: Path, spec: RunSpec, models_dir: Path) -> RunRecord | Non
 
 
 def _run_dir(out: Path, plant: Plant, spec: RunSpec, nested: bool) -> Path:
-    name = f'{spec.scenario}-s{spec.seed}-{spec.controller}'
+    name = f'{spec.scenario}-s{spec.seed}-{label(spec.controller)}'
     return (out / plant.label / name) if nested else out / name
 
 

@@ -102,10 +102,10 @@ def passive_angles(baselines: dict[str, np.ndarray], initial_k: float) -> np.nda
 
 
 def dlmpc(models_dir: Path, limits: AngleLimits, *,
-          config: DLMPCConfig | None = None) -> DLMPCController:
-    """The DL-MPC (:func:`load_dlmpc`) with ``config`` (default: the shipped settings)
-    within ``limits``."""
-    return load_dlmpc(models_dir, replace(config or DLMPCConfig(), limits=limits))
+          dlmpc_config: DLMPCConfig | None = None) -> DLMPCController:
+    """The DL-MPC (:func:`load_dlmpc`) with ``dlmpc_config`` (default: the shipped
+    settings) within ``limits``."""
+    return load_dlmpc(models_dir, replace(dlmpc_config or DLMPCConfig(), limits=limits))
 
 
 def esc(models_dir: Path, limits: AngleLimits) -> ESCController:
@@ -158,6 +158,6 @@ def make_controller(spec: str, models_dir: Path, limits: AngleLimits | None = No
                     initial_k: float | None = None,
                     dlmpc_config: DLMPCConfig | None = None) -> Controller:
     """Any controller by spec (a registered name such as those of :data:`CONTROLLERS`, or
-    ``package.module:factory``) within ``limits``: ``initial_k`` reaches a factory that
-    names it (``passive``), ``dlmpc_config`` one that names ``config`` (``dlmpc``)."""
-    return build(spec, models_dir, limits, initial_k=initial_k, config=dlmpc_config)
+    ``package.module:factory``) within ``limits``; ``initial_k`` and ``dlmpc_config``
+    reach the factories that name them (``passive``, ``dlmpc``)."""
+    return build(spec, models_dir, limits, initial_k=initial_k, dlmpc_config=dlmpc_config)

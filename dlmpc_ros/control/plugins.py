@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import importlib
 import inspect
+import re
 from collections.abc import Callable
 from importlib import metadata
 from pathlib import Path
@@ -26,8 +27,9 @@ GROUP = 'dlmpc_ros.controllers'
 #: Settings a harness may offer, each passed only to a factory that names it:
 #: ``initial_k`` (the true K of round trip 1: what the ``passive`` baseline was tuned
 #: for; evaluation only, a fair controller never names it), ``angles`` (the angles the
-#: ``passive`` baseline holds), ``config`` (the DL-MPC's settings), ``ga_config``.
-OFFERED = ('initial_k', 'angles', 'config', 'ga_config')
+#: ``passive`` baseline holds), ``dlmpc_config`` and ``ga_config`` (the DL-MPC's and the
+#: genetic algorithm's settings).
+OFFERED = ('initial_k', 'angles', 'dlmpc_config', 'ga_config')
 
 
 class ControllerSpecError(ValueError):
@@ -86,6 +88,9 @@ def build(spec: str, models_dir: Path, limits: AngleLimits | None = None,
           **offered: object) -> Controller:
     """The controller of ``spec``: its factory called with ``models_dir``, ``limits``
     and those ``offered`` settings (not None) that the factory names."""
+    if not set(offered) <= set(OFFERED):
+        unknown = sorted(set(offered) - set(OFFERED))
+        raise TypeError(f'a harness offers only {OFFERED}, not {unknown}')
     factory = resolve(spec)
     limits = limits or AngleLimits()
     settings = {k: v for k, v in offered.items() if v is not None and k in _named(factory)}
@@ -111,3 +116,9 @@ def _named(factory: Callable) -> set[str]:
         return set()
     return {p.name for p in parameters[2:]
             if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+
+
+def label(spec: str) -> str:
+    """``spec`` as a file name: a registered name as it is, ``package.module:factory``
+    with every character but letters, digits, ``.``, ``_`` and ``-`` as ``-``."""
+    return re.sub(r'[^A-Za-z0-9._-]', '-', spec.strip())

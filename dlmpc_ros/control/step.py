@@ -8,10 +8,11 @@ from typing import Protocol
 import numpy as np
 
 #: Modes a controller reports: the DL-MPC loops, holding (no usable input), baselines,
-#: the DL-MPC's lock acquisition scan, its curve tracking, the genetic algorithm, and the
-#: DL-MPC's planned turns of its curve (tracking periods in which the planner moved it).
+#: the DL-MPC's lock acquisition scan, its curve tracking, the genetic algorithm, the
+#: DL-MPC's planned turns of its curve (tracking periods in which the planner moved it),
+#: and ``custom`` for a plug-in controller's own (docs/controllers.md).
 MODES = ('inner', 'outer', 'hold', 'passive', 'fixed_best', 'esc', 'oracle', 'acquire',
-         'track', 'ga', 'plan')
+         'track', 'ga', 'plan', 'custom')
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
-from dlmpc_ros.control.factory import load_dlmpc, load_estimator, make_controller
+from dlmpc_ros.control.factory import load_estimator, make_controller
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.core import checks
 from dlmpc_ros.core.config import CavityConfig
@@ -36,7 +36,8 @@ class LockSpec:
     """One controller's benchmark on one plant."""
 
     controller: str
-    """Controller name (:data:`~dlmpc_ros.control.factory.CONTROLLERS`)."""
+    """Controller spec: a registered name (:data:`~dlmpc_ros.control.factory.CONTROLLERS`)
+    or ``package.module:factory`` (:mod:`dlmpc_ros.control.plugins`)."""
     starts: int = 100
     """Cold starts."""
     budget: int = 1000
@@ -99,26 +100,31 @@ class LockTask:
 
 def run_starts(task: LockTask) -> list[dict]:
     """Run the task's starts; per start ``index``, ``K``, ``locked``, ``round_trips``
-    (to lock; None when it did not lock within the budget)."""
+    (to lock; None when it did not lock within the budget). The controller is built here
+    (on the worker) from its spec for each start, with that start's K as ``initial_k``;
+    one with a ``fresh()`` method (the DL-MPC) is built once and each start gets
+    ``fresh()``."""
     spec = task.spec
     models = Path(task.models_dir)
     envelope = {'K': task.envelope_k, 'O_star': task.envelope_o}
     limits = AngleLimits(max_step=spec.max_step)
-    dlmpc = spec.controller == 'dlmpc'
-    prototype = (load_dlmpc(models, replace(task.config or DLMPCConfig(), limits=limits))
-                 if dlmpc else None)
-    estimator = load_estimator(models) if dlmpc else None
+    estimator = load_estimator(models) if spec.controller == 'dlmpc' else None
+    prototype = None
     out = []
     for index in task.indices:
         angles, k0, noise_seed = start_conditions(spec.seed, index)
         scenario = (Constant(offset=k0) if spec.drift == 'held' else
                     RandomWalk(offset=k0, sigma=0.05, correlation_time=5000.0,
                                seed=noise_seed))
-        if dlmpc:  # the models are loaded once; every start gets a controller afresh
+        if prototype is None:
+            controller = make_controller(spec.controller, models, limits, initial_k=k0,
+                                         dlmpc_config=task.config)
+            if hasattr(controller, 'fresh'):  # models loaded once, a controller per start
+                prototype = controller
+        if prototype is not None:
             controller = prototype.fresh()
+        if estimator is not None:
             estimator.reset()
-        else:
-            controller = make_controller(spec.controller, models, limits, initial_k=k0)
         record = run_closed_loop(controller, scenario, spec.budget, spec.period, angles,
                                  cavity_config=spec.cavity, estimator=estimator,
                                  initial='noise', initial_seed=noise_seed)

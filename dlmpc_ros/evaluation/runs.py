@@ -33,7 +33,9 @@ class RunSpec:
     seed: int
     """Seed of the random initial angles and of the random walk."""
     controller: str
-    """Controller name (:data:`~dlmpc_ros.control.factory.CONTROLLERS`)."""
+    """Controller spec: a registered name (:data:`~dlmpc_ros.control.factory.CONTROLLERS`)
+    or ``package.module:factory`` (:mod:`dlmpc_ros.control.plugins`), built where the run
+    runs (a Dask worker resolves it there)."""
     settings: dict = field(default_factory=dict)
     """The scenario's settings (empty: the preset's)."""
     round_trips: int = 20000

@@ -1,11 +1,14 @@
-"""baseline_controller: what a lab would use instead of DL-MPC, on the same topics.
+"""baseline_controller: what a lab would use instead of DL-MPC, on the same topics, or
+any controller of your own.
 
 ``controller`` selects ``esc`` (extremum seeking), ``ga`` (a genetic algorithm that
 searches, then holds its best), ``passive`` (the angles best for the initial K, held),
 ``fixed_best`` (the angles with the best worst-case O over the K range) or ``oracle``
 (evaluation only: subscribes ``/laser/sim_truth`` for the true K, which no other
-controller reads). Publishes ``/laser/angles_cmd`` and ``/controller/status`` once
-per control period of ``/laser/state``.
+controller reads), or any other registered name or ``package.module:factory``
+(docs/controllers.md; without the estimator's surrogate). Publishes
+``/laser/angles_cmd`` and ``/controller/status`` once per control period of
+``/laser/state``.
 """
 
 from __future__ import annotations
@@ -18,9 +21,9 @@ from rclpy.experimental import EventsExecutor
 from std_msgs.msg import Float64MultiArray
 
 from dlmpc_ros import interfaces as itf
-from dlmpc_ros.control.factory import CONTROLLERS, make_baseline
+from dlmpc_ros.control.factory import CONTROLLERS
 from dlmpc_ros.control.ga import GAConfig
-from dlmpc_ros.learning.model_files import ModelFileError
+from dlmpc_ros.control.plugins import build
 from dlmpc_ros.paths import models_dir
 from dlmpc_ros.ros import params
 from dlmpc_ros.ros.controller_base import ControllerNodeBase
@@ -39,7 +42,8 @@ RANGES: dict[str, tuple[float, float]] = {
     'ga_lock_objective': (1e-9, 1e4), 'ga_restart_level': (0.0, 1.0),
 }
 DESCRIPTIONS = {
-    'controller': f'which baseline: one of {BASELINES}',
+    'controller': f'which controller: one of {BASELINES}, another registered name or '
+                  'package.module:factory (docs/controllers.md)',
     'angles': 'passive only: the 4 angles to hold [rad] (else tuned for '
               'initial_birefringence)',
     'initial_birefringence': 'passive only: the K the passive setting was tuned for',
@@ -55,9 +59,6 @@ DESCRIPTIONS = {
 class BaselineControllerNode(ControllerNodeBase):
     def __init__(self) -> None:
         super().__init__('baseline_controller', DEFAULTS, DESCRIPTIONS, RANGES)
-        name = self.values['controller']
-        if name not in BASELINES:
-            raise params.StartupError(f'controller must be one of {BASELINES}, got {name!r}')
         angles = np.array(self.values['angles'], float)
         k0 = self.values['initial_birefringence']
         v = self.values
@@ -65,14 +66,14 @@ class BaselineControllerNode(ControllerNodeBase):
             ga = GAConfig(population=v['ga_population'], generations=v['ga_generations'],
                           dwell=v['ga_dwell'], lock_objective=v['ga_lock_objective'],
                           restart_level=v['ga_restart_level'])
-            self.controller = make_baseline(
-                name, models_dir(self.values['models_dir']), self.limits,
+            self.controller = build(
+                self.values['controller'], models_dir(self.values['models_dir']), self.limits,
                 angles=angles if angles.size == 4 else None,
                 initial_k=None if math.isnan(k0) else k0, ga_config=ga)
-        except (ModelFileError, FileNotFoundError, ValueError) as err:
+        except (FileNotFoundError, ValueError) as err:  # ControllerSpecError: one line
             raise params.StartupError(str(err)) from None
         self._truth: dict[int, float] = {}
-        if name == 'oracle':
+        if hasattr(self.controller, 'observe_truth'):  # the oracle (evaluation only)
             self.create_subscription(Float64MultiArray, itf.TOPIC_SIM_TRUTH, self._on_truth,
                                      QOS[itf.TOPIC_SIM_TRUTH])
         self.start()

@@ -1,0 +1,1 @@
+"""Examples that use the package as a user would (docs/controllers.md)."""
