@@ -8,6 +8,7 @@ between any two round trips. Fields are kept in the circular basis internally; u
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -15,6 +16,7 @@ from dlmpc_ros.core import kernels
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.grid import Grid
 from dlmpc_ros.core.jones import FROM_CIRCULAR, TO_CIRCULAR, circular_transfer
+from dlmpc_ros.core.schemes import COMPOSITIONS, EXTRAPOLATIONS
 
 #: Initial conditions understood by :func:`initial_field`.
 INITIAL_CONDITIONS = ('sech', 'noise')
@@ -42,6 +44,36 @@ def initial_field(grid: Grid, kind: str = 'sech', batch: int = 1,
                 for _ in range(2))
         return u, v
     raise ValueError(f'unknown initial condition {kind!r}; choose one of {INITIAL_CONDITIONS}')
+
+
+@lru_cache(maxsize=16)
+def scheme_tables(config: CavityConfig) -> tuple[np.ndarray, ...]:
+    """What :func:`kernels.run_scheme_serial` takes for ``config.scheme`` (any but the
+    default 'strang', which has its own kernel), computed once per configuration.
+
+    Returns ``weights`` (s,) of the composition, ``multiples`` (L,) int and
+    ``coefficients`` (L,) of the extrapolation levels, ``lengths`` (L, s + 2) of each
+    level's linear steps and ``phases`` (L, s + 2, n) complex, their dispersion and loss
+    factors (see :func:`kernels._one_laser_scheme`).
+    """
+    name = config.scheme
+    if name in COMPOSITIONS:
+        weights, multiples, coefficients = np.array(COMPOSITIONS[name]), (1,), (1.0,)
+    else:
+        weights = np.ones(1)
+        multiples, coefficients = EXTRAPOLATIONS[name]
+    multiples, coefficients = np.array(multiples, np.int64), np.array(coefficients)
+    s = weights.shape[0]
+    h = config.fiber_length / (multiples[:, None] * config.steps_per_round_trip)  # (L, 1)
+    between = 0.5 * (weights[:-1] + weights[1:])
+    shares = np.concatenate([[0.5 * weights[0]], between,
+                             [0.5 * (weights[-1] + weights[0]), 0.5 * weights[-1]]])
+    lengths = h * shares  # (L, s + 2)
+    k2 = Grid.from_config(config).k_grid ** 2
+    phases = np.exp((-0.5j * config.dispersion * lengths[..., None]) * k2
+                    - config.loss * lengths[..., None])
+    assert lengths.shape == (multiples.shape[0], s + 2)
+    return weights, multiples, coefficients, lengths, phases
 
 
 @dataclass(frozen=True)
@@ -227,12 +259,17 @@ class Cavity:
             raise ValueError(f'round_trips must be >= 1, got {round_trips}')
         cfg, grid = self.config, self.grid
         obs = np.empty((round_trips, self.batch, kernels.N_OBSERVABLES))
-        kernel = (kernels.run_batch_parallel if self.batch >= PARALLEL_MIN_BATCH
-                  else kernels.run_batch_serial)
-        kernel(self._p, self._m, self._phi_prev, self._birefringence, self._transfer,
-               round_trips, cfg.steps_per_round_trip, cfg.fiber_length, cfg.dispersion,
-               cfg.cross_phase, cfg.four_wave, cfg.pump, cfg.saturation_energy,
-               cfg.gain_bandwidth, cfg.loss, grid.k_grid, grid.mode_index, grid.dt, obs)
+        parallel = self.batch >= PARALLEL_MIN_BATCH
+        common = (cfg.cross_phase, cfg.four_wave, cfg.pump, cfg.saturation_energy,
+                  cfg.gain_bandwidth, cfg.loss, grid.k_grid, grid.mode_index, grid.dt, obs)
+        state = (self._p, self._m, self._phi_prev, self._birefringence, self._transfer,
+                 round_trips, cfg.steps_per_round_trip)
+        if cfg.scheme == 'strang':  # its own kernel: the default's numbers stay bit for bit
+            kernel = kernels.run_batch_parallel if parallel else kernels.run_batch_serial
+            kernel(*state, cfg.fiber_length, cfg.dispersion, *common)
+        else:
+            kernel = kernels.run_scheme_parallel if parallel else kernels.run_scheme_serial
+            kernel(*state, *scheme_tables(cfg), cfg.fiber_length, *common)
         result = RoundTripResult.from_kernel(self.round_trip + 1, obs, cfg.steady_tolerance)
         self.round_trip += round_trips
         return result
@@ -243,7 +280,9 @@ class Cavity:
 
 
 def compile_kernels() -> None:
-    """Compile the serial and the thread-parallel kernel into numba's on-disk cache (one
-    short run of each), so that no later process pays the compile time (about 20 s)."""
-    for batch in (1, PARALLEL_MIN_BATCH):
-        Cavity(batch=batch).run(1)
+    """Compile the serial and the thread-parallel kernels (the symmetric split step's and
+    the compositions') into numba's on-disk cache (one short run of each), so that no
+    later process pays the compile time (about 20 s each)."""
+    for scheme in ('strang', 'richardson4'):
+        for batch in (1, PARALLEL_MIN_BATCH):
+            Cavity(CavityConfig(scheme=scheme), batch=batch).run(1)

@@ -11,6 +11,8 @@ import math
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
+from dlmpc_ros.core.schemes import ORDER, SCHEMES
+
 #: The birefringence range the model is specified and trained for.
 BIREFRINGENCE_RANGE = (-0.3, 0.3)
 
@@ -40,8 +42,12 @@ class CavityConfig:
     points: int = 256
     """n, number of time (and wavenumber) grid points; at least 16."""
     steps_per_round_trip: int = 32
-    """Symmetric split steps of the fiber pass. The scheme is second order; 32 keeps E and
-    M within 3e-4 of a DOP853 solution at the defaults."""
+    """Steps of the fiber pass (each one composition of ``scheme``'s symmetric split
+    steps). With 'strang' (second order), 32 keeps E and M within 3e-4 of a DOP853
+    solution at the defaults; see docs/solver.md for the other schemes."""
+    scheme: str = 'strang'
+    """Integration scheme of the fiber pass, one of :data:`SCHEMES`: 'strang' (the
+    symmetric split step, second order) or a fourth-order composition of it."""
     steady_tolerance: float = 1e-6
     """A laser is at steady state when the relative L2 change of its amplitude ``phi``
     between consecutive round trips is below this value."""
@@ -60,7 +66,12 @@ class CavityConfig:
             raise ValueError(f'unknown cavity parameter(s) {unknown}; known: {sorted(known)}')
         return cls(**values)
 
-    def to_dict(self) -> dict[str, float | int]:
+    @property
+    def order(self) -> int:
+        """Order of convergence of the scheme in the step size."""
+        return ORDER[self.scheme]
+
+    def to_dict(self) -> dict[str, float | int | str]:
         return asdict(self)
 
 
@@ -90,6 +101,9 @@ def config_problems(values: dict[str, Any]) -> list[str]:
         if name in ('points', 'steps_per_round_trip'):
             if isinstance(value, bool) or not isinstance(value, int):
                 problems.append(f'{name} must be an integer, got {value!r}')
+        elif name == 'scheme':
+            if not isinstance(value, str) or value not in SCHEMES:
+                problems.append(f'scheme must be one of {tuple(SCHEMES)}, got {value!r}')
         elif isinstance(value, bool) or not isinstance(value, (int, float)) \
                 or not math.isfinite(value):
             problems.append(f'{name} must be a finite number, got {value!r}')
