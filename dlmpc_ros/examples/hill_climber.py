@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.step import ControlStep
+from dlmpc_ros.control.step import ControlStep, implausible
 
 
 class HillClimber:
@@ -23,6 +23,8 @@ class HillClimber:
 
     def step(self, measurement: np.ndarray, surrogate: float | None = None) -> ControlStep:
         e, m, angles = measurement[0], measurement[1], measurement[2:6]
+        if implausible(measurement):  # no laser's (a glitch, a corrupt driver): hold
+            return ControlStep(angles=self.limits.apply(angles, angles), mode='hold')
         o = e / m  # what the period measured at ``angles``
         if self.kept is None or o > self.kept_o:
             self.kept, self.kept_o = angles.copy(), o  # first period, or the trial paid

@@ -45,7 +45,7 @@ def _controller(name: str):
     return _built[name]
 
 
-@pytest.mark.parametrize('name', CONTROLLERS)
+@pytest.mark.parametrize('name', [*CONTROLLERS, 'dlmpc_ros.examples.hill_climber:make'])
 @given(sequence=steps)
 def test_every_step_commands_finite_angles_inside_the_limits(name, sequence):
     controller = _controller(name)

@@ -1,7 +1,8 @@
 """No controller sees the true K, tested by behaviour: a fresh controller fed a recorded
 run's measurements decides exactly as it did in the run, while the process's true K is
 changed (another scenario has run since) and then removed (the drift scenarios and the
-simulator raise if anything asks them)."""
+simulator raise if anything asks them). A plugged-in controller (the example of
+docs/controllers.md) is held to the same test."""
 
 import numpy as np
 import pytest
@@ -22,7 +23,8 @@ def _no_truth(*_args, **_kwargs):
     raise AssertionError('a controller asked for the true K or the simulator')
 
 
-@pytest.mark.parametrize('name', ['dlmpc', 'esc', 'fixed_best'])
+@pytest.mark.parametrize('name', ['dlmpc', 'esc', 'fixed_best',
+                                  'dlmpc_ros.examples.hill_climber:make'])
 def test_replayed_measurements_give_the_same_decisions_without_the_true_k(name, monkeypatch):
     models = models_dir()
     spec = RunSpec('random_walk', 1, name, round_trips=ROUND_TRIPS)
