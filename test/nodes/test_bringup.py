@@ -8,15 +8,18 @@ import sys
 import numpy as np
 import pytest
 
+from dlmpc_ros.control.step import MODES
 from dlmpc_ros.core.drift import make_scenario
 
 
 def test_bringup_runs_the_graph_and_records_every_round_trip(ros_env, tmp_path):
+    """... with a plugged-in controller (the example of docs/controllers.md) in the
+    baseline_controller node."""
     out = tmp_path / 'run.csv'
     domain = ros_env['ROS_DOMAIN_ID']
     proc = subprocess.run(
-        [sys.executable, '-m', 'dlmpc_ros.bringup', '--controller', 'none', '--round-trips', '400',
-         '--rate', '1000',
+        [sys.executable, '-m', 'dlmpc_ros.bringup', '--controller',
+         'dlmpc_ros.examples.hill_climber:make', '--round-trips', '400', '--rate', '1000',
          '--scenario', 'sinusoidal', '--scenario-param', 'period=200',
          '--scenario-param', 'amplitude=0.25',
          '--domain-id', domain, '--csv', str(out), '--plot', str(tmp_path / 'run.png'),
@@ -42,6 +45,21 @@ def test_bringup_runs_the_graph_and_records_every_round_trip(ros_env, tmp_path):
     o = np.array([float(r['O']) for r in rows])
     assert np.isfinite(o).all() and o.std() > 0.01  # the drift moves the laser
     assert (tmp_path / 'run.png').stat().st_size > 10_000
+    with open(tmp_path / 'run.controller.csv') as handle:
+        modes = {int(float(r['mode'])) for r in csv.DictReader(handle)}
+    assert modes == {MODES.index('custom')}  # the plug-in decided, through the node
+
+
+def test_bringup_stops_at_start_on_a_controller_it_cannot_build(ros_env, tmp_path):
+    proc = subprocess.run(
+        [sys.executable, '-m', 'dlmpc_ros.bringup', '--controller',
+         'test.control.plugin_examples:not_a_controller', '--log-dir', str(tmp_path / 'logs')],
+        env=ros_env, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and proc.stderr.count('\n') == 1, proc.stderr
+    assert proc.stderr.startswith("bringup: controller 'test.control.plugin_examples:"
+                                  "not_a_controller': its factory returned 'str', not a "
+                                  'controller'), proc.stderr
+    assert not (tmp_path / 'logs').exists()
 
 
 def test_bringup_rejects_bad_scenario_before_starting_nodes(ros_env, tmp_path):
