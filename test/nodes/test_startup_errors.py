@@ -101,7 +101,13 @@ CASES = {
                              ['discovery_period = 1e+300 is outside its range']),
     # baseline_controller (esc needs no model file)
     'baseline-unknown-controller': (BASELINE, ['-p', 'controller:=teleport'],
-                                    ['controller must be one of']),
+                                    ["unknown controller 'teleport'", 'registered are']),
+    # plug-in controllers (docs/controllers.md); a factory that raises: baseline-no-models
+    'baseline-plugin-import': (BASELINE, ['-p', 'controller:=test.control.nowhere:make'],
+                               ["controller 'test.control.nowhere:make': cannot import"]),
+    'baseline-plugin-not-a-controller': (
+        BASELINE, ['-p', 'controller:=test.control.plugin_examples:not_a_controller'],
+        ["its factory returned 'str', not a controller"]),
     'baseline-zero-period': (BASELINE, ['-p', 'controller:=esc', '-p', 'period:=0'],
                              ['period = 0 is outside its range [1, 1e+06]']),
     'baseline-angle-limits': (BASELINE, ['-p', 'controller:=esc', '-p', 'angle_low:=2.0',
