@@ -64,7 +64,9 @@ DESCRIPTIONS = {
     'fiber_length': 'Z, fiber length of one round trip (normalized units)',
     'window': 'T, width of the periodic time window (normalized units)',
     'points': 'n, time (and wavenumber) grid points',
-    'steps_per_round_trip': 'symmetric split steps of the fiber pass',
+    'steps_per_round_trip': 'steps of the fiber pass (each one step of the scheme)',
+    'scheme': "integration scheme of the fiber pass: 'strang' (default, second order), "
+              "'richardson4', 'suzuki4' or 'yoshida4' (fourth order; docs/solver.md)",
     'steady_tolerance': 'relative change of the amplitude per round trip below which the '
                         'laser is at steady state',
     'initial_angles': 'alpha1, alpha2, alpha3, alpha_p at start [rad]',
