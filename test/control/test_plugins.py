@@ -83,3 +83,10 @@ def test_every_bad_spec_is_one_line_saying_which_and_why(spec, words):
 def test_a_spec_is_a_file_name():
     assert label('esc') == 'esc'
     assert label('my_lab.es:make') == 'my_lab.es-make'
+
+
+def test_the_documented_example_is_the_shipped_file():
+    root = Path(__file__).resolve().parents[2]
+    code = (root / 'dlmpc_ros' / 'examples' / 'hill_climber.py').read_text()
+    assert f'```python\n{code}```' in (root / 'docs' / 'controllers.md').read_text()
+    assert len(code.splitlines()) <= 45
