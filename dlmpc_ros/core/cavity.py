@@ -260,16 +260,18 @@ class Cavity:
         cfg, grid = self.config, self.grid
         obs = np.empty((round_trips, self.batch, kernels.N_OBSERVABLES))
         parallel = self.batch >= PARALLEL_MIN_BATCH
-        common = (cfg.cross_phase, cfg.four_wave, cfg.pump, cfg.saturation_energy,
-                  cfg.gain_bandwidth, cfg.loss, grid.k_grid, grid.mode_index, grid.dt, obs)
+        # floats always (a setting given as an int would compile the kernels once more)
+        common = (*map(float, (cfg.cross_phase, cfg.four_wave, cfg.pump, cfg.saturation_energy,
+                               cfg.gain_bandwidth, cfg.loss)),
+                  grid.k_grid, grid.mode_index, grid.dt, obs)
         state = (self._p, self._m, self._phi_prev, self._birefringence, self._transfer,
                  round_trips, cfg.steps_per_round_trip)
         if cfg.scheme == 'strang':  # its own kernel: the default's numbers stay bit for bit
             kernel = kernels.run_batch_parallel if parallel else kernels.run_batch_serial
-            kernel(*state, cfg.fiber_length, cfg.dispersion, *common)
+            kernel(*state, float(cfg.fiber_length), float(cfg.dispersion), *common)
         else:
             kernel = kernels.run_scheme_parallel if parallel else kernels.run_scheme_serial
-            kernel(*state, *scheme_tables(cfg), cfg.fiber_length, *common)
+            kernel(*state, *scheme_tables(cfg), float(cfg.fiber_length), *common)
         result = RoundTripResult.from_kernel(self.round_trip + 1, obs, cfg.steady_tolerance)
         self.round_trip += round_trips
         return result

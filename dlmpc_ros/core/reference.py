@@ -36,28 +36,41 @@ def fiber_rhs(z: float, y: np.ndarray, cfg: CavityConfig, k: np.ndarray, dt: flo
     ])
 
 
+def reference_pass(u: np.ndarray, v: np.ndarray, birefringence: float,
+                   config: CavityConfig | None = None, rtol: float = 1e-10,
+                   atol: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
+    """The fields ``(u, v)``, (n,) complex each, after one fiber pass (before the Jones
+    elements), integrated with DOP853."""
+    cfg = config or CavityConfig()
+    grid = Grid.from_config(cfg)
+    n = grid.points
+    sol = solve_ivp(fiber_rhs, (0.0, cfg.fiber_length),
+                    np.concatenate([np.fft.fft(u), np.fft.fft(v)]), method='DOP853',
+                    rtol=rtol, atol=atol, args=(cfg, grid.k_grid, grid.dt, birefringence))
+    if not sol.success:
+        raise RuntimeError(f'DOP853 failed: {sol.message}')
+    return np.fft.ifft(sol.y[:n, -1]), np.fft.ifft(sol.y[n:, -1])
+
+
 def reference_round_trips(angles: np.ndarray, birefringence: float, round_trips: int,
                           config: CavityConfig | None = None, rtol: float = 1e-10,
                           atol: float = 1e-12, u0: np.ndarray | None = None,
-                          v0: np.ndarray | None = None) -> list[dict[str, float]]:
+                          v0: np.ndarray | None = None,
+                          fields: bool = False) -> list[dict[str, float | np.ndarray]]:
     """Integrate round trips with DOP853 from ``u = v = sech(t/2)`` (or u0, v0).
 
-    Returns one dict per round trip with ``energy, E, M, O`` after the Jones elements.
+    Returns one dict per round trip with ``energy, E, M, O`` after the Jones elements
+    (and with ``fields``, the fields ``u`` and ``v`` there, (n,) complex).
     """
     cfg = config or CavityConfig()
     grid = Grid.from_config(cfg)
     transfer = cavity_transfer(np.asarray(angles, float))
     u = 1 / np.cosh(grid.t_grid / 2) + 0j if u0 is None else np.asarray(u0, np.complex128)
     v = u.copy() if v0 is None else np.asarray(v0, np.complex128)
-    n = grid.points
     out = []
     for _ in range(round_trips):
-        sol = solve_ivp(fiber_rhs, (0.0, cfg.fiber_length),
-                        np.concatenate([np.fft.fft(u), np.fft.fft(v)]), method='DOP853',
-                        rtol=rtol, atol=atol, args=(cfg, grid.k_grid, grid.dt, birefringence))
-        if not sol.success:
-            raise RuntimeError(f'DOP853 failed: {sol.message}')
-        u, v = np.fft.ifft(sol.y[:n, -1]), np.fft.ifft(sol.y[n:, -1])
+        u, v = reference_pass(u, v, birefringence, cfg, rtol, atol)
         u, v = transfer[0, 0] * u + transfer[0, 1] * v, transfer[1, 0] * u + transfer[1, 1] * v
-        out.append({key: float(val) for key, val in objective_terms(u, v, grid.dt).items()})
+        row = {key: float(val) for key, val in objective_terms(u, v, grid.dt).items()}
+        out.append({**row, 'u': u, 'v': v} if fields else row)
     return out

@@ -19,6 +19,7 @@ from hypothesis import strategies as st
 from dlmpc_ros.core.cavity import Cavity
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.drift import DEFAULTS, K_MAX, K_MIN, make_scenario
+from dlmpc_ros.core.schemes import SCHEMES
 from test.strategies import any_float, any_int, finite_float
 
 FIELDS = {f.name: f.type for f in fields(CavityConfig)}
@@ -29,6 +30,8 @@ ROUND_TRIPS = 5
 def _value(name: str):
     if name in ('points', 'steps_per_round_trip'):
         return st.one_of(any_int(), any_float(), st.booleans())
+    if name == 'scheme':
+        return st.one_of(st.sampled_from(SCHEMES), st.text(max_size=8), any_int())
     return st.one_of(any_float(), any_int(), st.booleans(), st.text(max_size=3))
 
 
@@ -46,7 +49,7 @@ def test_a_cavity_parameter_is_refused_by_name_or_runs(name, data):
     angles = data.draw(st.lists(finite_float(10.0), min_size=4, max_size=4))
     k = data.draw(st.floats(K_MIN, K_MAX))
     cavity = Cavity(config, angles=np.array(angles), birefringence=k)
-    Cavity(CavityConfig(**small)).step()  # compiled once per process, not timed
+    Cavity(CavityConfig(**small, scheme=config.scheme)).step()  # compiled once, not timed
     started = time.perf_counter()
     for _ in range(ROUND_TRIPS):
         result = cavity.step()
