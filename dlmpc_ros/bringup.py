@@ -40,6 +40,7 @@ from dlmpc_ros import interfaces as itf
 from dlmpc_ros.control.factory import CONTROLLERS
 from dlmpc_ros.control.plugins import ControllerSpecError, build
 from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
+from dlmpc_ros.core.bench import BENCH_FIELDS, BENCH_PRESETS, parse_bench
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.drift import SCENARIOS, make_scenario, parse_settings
 from dlmpc_ros.core.plants import NOMINAL, PHYSICS_FIELDS, parse_plant, plant_parameters
@@ -67,8 +68,7 @@ PUBLISHES = {
     'mpc_controller': (itf.TOPIC_ANGLES_CMD, itf.TOPIC_CONTROLLER_STATUS),
     'baseline_controller': (itf.TOPIC_ANGLES_CMD, itf.TOPIC_CONTROLLER_STATUS),
 }
-STATE_READERS = ('drift_injector', 'vae_estimator', 'mpc_controller', 'baseline_controller',
-                 'recorder')
+STATE_READERS = ('drift_injector', 'mpc_controller', 'baseline_controller', 'recorder')
 DEFAULT_DOMAIN_ID = 87
 
 
@@ -115,6 +115,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument('--plant', action='append', default=[], metavar='KEY=VALUE',
                    help='a physical parameter of the simulated cavity, repeatable (one of '
                         f'{", ".join(PHYSICS_FIELDS)}); only laser_sim gets it')
+    p.add_argument('--bench', action='append', default=[], metavar='PRESET|KEY=VALUE',
+                   help='emulate the lab bench in laser_sim, repeatable: a preset ('
+                        f'{", ".join(BENCH_PRESETS)}) or a setting ({", ".join(BENCH_FIELDS)}; '
+                        'docs/nodes.md)')
     p.add_argument('--plant-family', type=int, metavar='SEED',
                    help='simulate plant SEED of the family of core/plants.py (drawn and '
                         'checked to mode-lock at every K once, then cached)')
@@ -180,6 +184,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             args.scenario_settings['path'] = str(Path(args.scenario_settings['path']).resolve())
         make_scenario(args.scenario, **args.scenario_settings)  # fail here, not in a node
         args.laser_overrides = {**plant_overrides(args),
+                                **parse_bench(args.bench).to_dict(),
                                 **dict(_laser_override(item) for item in args.laser_param)}
         args.controller_overrides = dict(_laser_override(item)
                                          for item in args.controller_param)
@@ -254,19 +259,23 @@ def build_graph(args: argparse.Namespace, env: dict[str, str], log_dir: Path) ->
                 overrides.setdefault('initial_birefringence', float(scenario(1)))
         elif name == 'drift_injector':
             overrides = {'scenario': args.scenario, **args.scenario_settings}
-        elif name in ('vae_estimator', 'mpc_controller', 'baseline_controller'):
+        elif name == 'vae_estimator':
+            if args.models_dir is not None:
+                overrides['models_dir'] = str(args.models_dir.resolve())
+        elif name in ('mpc_controller', 'baseline_controller'):
             overrides = {'period': args.period,
                          'measurement_round_trips': args.measurement_round_trips}
             if args.models_dir is not None:
                 overrides['models_dir'] = str(args.models_dir.resolve())
             if name == 'mpc_controller' and args.controller == 'explore':
                 overrides['plan_explore'] = True
-            if name != 'vae_estimator':
-                overrides.update(args.controller_overrides)
+            overrides.update(args.controller_overrides)
             if name == 'baseline_controller':
-                # passive: the setting a person tuned for the initial K, then left alone
-                overrides.update(controller=args.controller,
-                                 initial_birefringence=float(scenario(1)))
+                overrides['controller'] = args.controller
+                if 'drift_injector' in args.nodes:
+                    # passive: the setting a person tuned for the simulated laser's initial
+                    # K, then left alone (a driver's laser: the node's parameter)
+                    overrides.setdefault('initial_birefringence', float(scenario(1)))
         elif name == 'recorder':
             # append: a recorder restarted after a crash continues the bag (a new file)
             overrides = {'output': str(args.record.resolve()), 'append': True,

@@ -69,13 +69,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help='in every fifth of the window the rate must reach this fraction of '
                         'the mean (default: %(default)s)')
     p.add_argument('--tolerance', type=float, default=d.tolerance,
-                   help='a state angle has reached its command within this [rad] (default: '
-                        '%(default)s)')
+                   help="a state angle has reached its command within this [rad]: the "
+                        "controllers' settle_tolerance (default: %(default)s)")
     p.add_argument('--max-round-trips', type=int, default=d.max_round_trips,
-                   help='a command must show in the state within this many round trips '
-                        '(default: %(default)s)')
+                   help='a command must show in the state within this many round trips: '
+                        "the controllers' settle_timeout (default: %(default)s)")
     p.add_argument('--step', type=float, default=d.step,
-                   help='angle change of the test commands [rad] (default: %(default)s)')
+                   help="angle change of the first test command [rad]: the controllers' "
+                        'max_step (default: %(default)s); the others move half of it')
     p.add_argument('--commands', type=int, default=3,
                    help='number of test commands before the malformed ones (default: '
                         '%(default)s)')
@@ -276,8 +277,9 @@ def _command_checks(session: Session, rt_rate: float) -> dict[str, object]:
     out['original'] = session.original
     trials: list[cf.CommandTrial] = out['trials']
     out['first_command_at'] = time.monotonic()
-    for target in cf.command_targets(session.original, s.step, session.args.commands):
-        trials.append(session.command(target, 'test'))
+    targets = cf.command_targets(session.original, s.step, session.args.commands)
+    for k, target in enumerate(targets):  # the first moves by max_step, the others by half
+        trials.append(session.command(target, 'full step' if k == 0 else 'half step'))
     newest = node.latest_state()
     before = tuple(newest.angles) if newest is not None else trials[-1].target
     malformed = cf.malformed_commands(before, s.step, s.angle_limit)

@@ -42,6 +42,7 @@ from dlmpc_ros.control.factory import CONTROLLERS
 from dlmpc_ros.control.plugins import ControllerSpecError, build, label
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
+from dlmpc_ros.core.bench import BENCH_FIELDS, BENCH_PRESETS, BenchConfig, parse_bench
 from dlmpc_ros.core.drift import DEFAULTS, parse_settings
 from dlmpc_ros.evaluation.figures import plot_surrogate, plot_tracking
 from dlmpc_ros.evaluation.presets import SCENARIOS, preset_settings
@@ -83,6 +84,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    metavar='N',
                    help="the estimator and controller read each period's E and M as the "
                         'mean of its last N round trips at its angles (default: %(default)s)')
+    p.add_argument('--bench', action='append', default=[], metavar='PRESET|KEY=VALUE',
+                   help='emulate the lab bench (servos, encoders, detectors), repeatable: a '
+                        f'preset ({", ".join(BENCH_PRESETS)}) or a setting '
+                        f'({", ".join(BENCH_FIELDS)}); docs/nodes.md')
     p.add_argument('--fast', action='store_true',
                    help='run the core objects in one process instead of the node graph')
     p.add_argument('--free-run', action='store_true',
@@ -134,6 +139,15 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         p.error('--measurement-noise must be in [0, 1)')
     if args.measurement_round_trips < 1:
         p.error('--measurement-round-trips must be >= 1')
+    try:
+        bench = parse_bench(args.bench)
+    except ValueError as err:
+        p.error(str(err))
+    ideal = BenchConfig().to_dict()
+    args.bench = {k: v for k, v in bench.to_dict().items() if v != ideal[k]}
+    if args.measurement_noise and 'detector_noise' in args.bench:
+        p.error('give the detector noise once: --measurement-noise or --bench '
+                'detector_noise=...')
     if args.bag and (args.scenario or args.controller or args.seed or args.fast
                      or args.plant or args.plant_family):
         p.error('--bag evaluates recorded runs; it takes no --scenario, --controller, '
@@ -164,7 +178,7 @@ def run_specs(args: argparse.Namespace, plant: dict | None = None) -> list[RunSp
     mode = 'fast' if args.fast else ('graph-free-run' if args.free_run else 'graph-lockstep')
     return [RunSpec(scenario, seed, controller, args.settings[scenario], args.round_trips,
                     args.period, args.max_step, args.measurement_noise, mode, dict(plant or {}),
-                    measurement_round_trips=args.measurement_round_trips)
+                    measurement_round_trips=args.measurement_round_trips, bench=args.bench)
             for scenario, seed, controller in itertools.product(args.scenario, args.seed,
                                                                 args.controller)]
 
@@ -371,7 +385,7 @@ def lock_benchmark(args: argparse.Namespace, plants: list[Plant], started: float
         for controller in args.controller:
             spec = LockSpec(controller, args.starts, args.budget, period=args.period,
                             max_step=args.max_step, drift=args.lock_drift,
-                            plant=dict(plant.parameters))
+                            plant=dict(plant.parameters), bench=dict(args.bench))
             for first in range(0, args.starts, per_task):
                 jobs.append((plant.label, controller, spec))
                 tasks.append(LockTask(spec, tuple(range(first, min(first + per_task,

@@ -7,7 +7,9 @@ counts once every reported angle is within ``tolerance`` of the command (it is
 *settled*). The measurement ``(E, M, alpha[4])`` is the mean E and M of the settled
 states among the latest ``round_trips`` (n) round trips, with their median reported
 angles. A decision is due at the first round trip r >= (last decision) + P at which the
-readings have been settled for min(n, P) round trips, or at (last decision) +
+readings have been settled for min(n, P) round trips (since the round trip after the
+latest state away from the command: a driver that skips round trip numbers is not held
+up by the ones it did not report), or at (last decision) +
 ``timeout`` whatever they are (then, if the servos never settled, the measurement is the
 latest state alone and :attr:`PeriodMeasurement.settled` says so). With servos that reach a
 command on the next round trip every decision falls at a multiple of P, on the same
@@ -84,6 +86,7 @@ class PeriodMeasurement:
         self._awaiting = False                # decided, its command not given yet
         self._moved = False                   # the command moved the servos
         self._first_settled: int | None = None
+        self._last_away = 0                   # latest state away from the command
         #: Whether the latest measurement was of settled states.
         self.settled = True
         #: Round trips from the decision before the latest one to the first state at its
@@ -96,10 +99,12 @@ class PeriodMeasurement:
         return self._last
 
     def wanted(self, round_trip: int) -> bool:
-        """Whether round trip r's state can matter: it may enter the next measurement, or
-        the servos are on their way to the command (its settle time is measured)."""
+        """Whether round trip r's state can matter: it may enter the next measurement, the
+        servos are on their way to the command (its settle time is measured), or it starts
+        a new run."""
         return (self._awaiting or (self._moved and self._first_settled is None)
-                or round_trip > self._last + self.period - self.round_trips)
+                or round_trip > self._last + self.period - self.round_trips
+                or round_trip < self._last)  # a new run
 
     def _at_command(self, state: np.ndarray, reference: np.ndarray) -> bool:
         return bool(np.abs(state[2:] - reference).max() <= self.tolerance)
@@ -113,19 +118,21 @@ class PeriodMeasurement:
         latest = self._latest[-1][1][2:] if self._latest else None
         self._moved = (self._command is not None and latest is not None
                        and not self._at_command(self._latest[-1][1], self._command))
-        self._first_settled = next(
-            (r for r, s in self._latest if r > self._last and self._settled(s)), None)
+        since = [(r, self._settled(s)) for r, s in self._latest if r > self._last]
+        self._first_settled = next((r for r, settled in since if settled), None)
+        self._last_away = max((r for r, settled in since if not settled), default=self._last)
 
     def _settled(self, state: np.ndarray) -> bool:
         reference = self._command if self._command is not None else self._latest[-1][1][2:]
         return self._at_command(state, reference)
 
     def _settled_since(self) -> int | None:
-        """First round trip of the states at the reference since which the servos are
-        settled: with a command, the first settled state after the last decision; without
-        one, the start of the trailing run of states at the latest state's angles."""
+        """Round trip since which the readings are at the reference: with a command, the
+        one after the latest state away from it since the last decision (a state that was
+        not reported counts as settled); without one, the start of the trailing run of
+        states at the latest state's angles."""
         if self._command is not None:
-            return self._first_settled
+            return self._last_away + 1 if self._settled(self._latest[-1][1]) else None
         since = None
         for r, state in reversed(self._latest):
             if not self._settled(state):
@@ -143,14 +150,16 @@ class PeriodMeasurement:
         elif self._latest and round_trip < self._latest[-1][0]:
             self._latest.clear()  # the round trips start again (a new run)
             self._last, self._command, self._awaiting = 0, None, False
-            self._moved, self._first_settled = False, None
+            self._moved, self._first_settled, self._last_away = False, None, 0
         state = np.asarray(state, float)
         self._latest.append((round_trip, state))
         if self._awaiting:
             return None
-        if (self._command is not None and self._first_settled is None
-                and self._settled(state)):
-            self._first_settled = round_trip
+        if self._command is not None:
+            if not self._settled(state):
+                self._last_away = round_trip
+            elif self._first_settled is None:
+                self._first_settled = round_trip
         elapsed = round_trip - self._last
         if elapsed < self.period:
             return None

@@ -136,9 +136,11 @@ class Bench:
             self._start -= 1
         else:
             gap = self.target - self.drive
-            if c.slew_rate > 0:
-                gap = np.clip(gap, -c.slew_rate, c.slew_rate)
-            self.drive = self.drive + gap
+            if c.slew_rate > 0:  # the last stretch lands on the target exactly
+                self.drive = np.where(np.abs(gap) <= c.slew_rate, self.target,
+                                      self.drive + np.clip(gap, -c.slew_rate, c.slew_rate))
+            else:
+                self.drive = self.target.copy()
         if c.backlash > 0:  # the optic follows once the drive has taken up the play
             half = c.backlash / 2
             self.optic = np.clip(self.optic, self.drive - half, self.drive + half)

@@ -41,10 +41,11 @@ def run_graph(out_dir: Path, controller: str, scenario: str, settings: list[str]
               domain_id: int, lockstep: bool = True, models_dir: Path | None = None,
               meta: dict | None = None, record_bag: Path | None = None,
               plant: list[str] = (),
-              measurement_round_trips: int = MEASUREMENT_ROUND_TRIPS) -> RunRecord:
+              measurement_round_trips: int = MEASUREMENT_ROUND_TRIPS,
+              bench: list[str] = ()) -> RunRecord:
     """Run the bringup for one closed loop (recording a bag to ``record_bag`` if given;
-    ``plant``: the simulator's ``KEY=VALUE`` plant settings); raises RuntimeError if it
-    fails."""
+    ``plant`` and ``bench``: the simulator's ``KEY=VALUE`` plant and bench settings);
+    raises RuntimeError if it fails."""
     out_dir.mkdir(parents=True, exist_ok=True)
     csv_path = out_dir / 'run.csv'
     cmd = [sys.executable, '-m', 'dlmpc_ros.bringup', '--controller', controller,
@@ -57,6 +58,8 @@ def run_graph(out_dir: Path, controller: str, scenario: str, settings: list[str]
         cmd += ['--scenario-param', item]
     for item in plant:
         cmd += ['--plant', item]
+    for item in bench:
+        cmd += ['--bench', item]
     if lockstep:
         cmd.append('--lockstep')
     if models_dir is not None:

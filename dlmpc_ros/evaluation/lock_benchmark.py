@@ -21,6 +21,7 @@ from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.factory import load_estimator, make_controller
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.core import checks
+from dlmpc_ros.core.bench import BenchConfig
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.drift import Constant, RandomWalk
 from dlmpc_ros.core.plants import NOMINAL, PHYSICS_FIELDS
@@ -58,6 +59,10 @@ class LockSpec:
     plant: dict = field(default_factory=dict)
     """Physical parameters of the simulated cavity that differ from the nominal one."""
 
+    bench: dict = field(default_factory=dict)
+    """The lab bench's settings that differ from an ideal one
+    (:class:`~dlmpc_ros.core.bench.BenchConfig`)."""
+
     def __post_init__(self) -> None:
         checks.counts(self, 'starts', 'budget', 'hold_periods', 'period')
         checks.counts(self, 'seed', minimum=0)
@@ -65,6 +70,7 @@ class LockSpec:
         checks.positive(self, 'max_step')
         if self.drift not in DRIFTS:
             raise ValueError(f'LockSpec.drift must be one of {DRIFTS}, got {self.drift!r}')
+        BenchConfig(**self.bench)
         if not set(self.plant) <= set(PHYSICS_FIELDS):
             raise ValueError(f'LockSpec.plant sets {sorted(set(self.plant) - set(PHYSICS_FIELDS))}'
                              f', not physical parameters {PHYSICS_FIELDS}')
@@ -127,7 +133,8 @@ def run_starts(task: LockTask) -> list[dict]:
             estimator.reset()
         record = run_closed_loop(controller, scenario, spec.budget, spec.period, angles,
                                  cavity_config=spec.cavity, estimator=estimator,
-                                 initial='noise', initial_seed=noise_seed)
+                                 initial='noise', initial_seed=noise_seed,
+                                 bench=BenchConfig(**spec.bench), noise_seed=noise_seed)
         o = np.nan_to_num(record.O, nan=0.0)
         locked = o >= spec.lock_fraction * envelope_objective(envelope, record.K)
         start = first_hold(locked, 0, spec.hold_periods * spec.period)

@@ -13,6 +13,7 @@ from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
 from dlmpc_ros.control.step import Controller
 from dlmpc_ros.core import checks
+from dlmpc_ros.core.bench import BenchConfig
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.plants import (NOMINAL, PHYSICS_FIELDS, plant_fingerprint,
                                    plant_parameters)
@@ -54,6 +55,10 @@ class RunSpec:
     measurement_round_trips: int = MEASUREMENT_ROUND_TRIPS
     """The estimator and controller see the mean E and M of the period's last this many
     round trips at its angles, each with its own measurement noise."""
+    bench: dict = field(default_factory=dict)
+    """The lab bench's settings that differ from an ideal one (servos, encoders,
+    detectors: :class:`~dlmpc_ros.core.bench.BenchConfig`); fast runs emulate them, graph
+    runs pass them to laser_sim."""
 
     def __post_init__(self) -> None:
         if self.scenario not in PRESETS:
@@ -69,11 +74,17 @@ class RunSpec:
             raise ValueError(f'RunSpec.plant sets {sorted(unknown)}, which are not physical '
                              f'parameters of the cavity {PHYSICS_FIELDS}')
         self.cavity  # noqa: B018 (a plant the simulator cannot run raises here)
+        self.bench_config  # noqa: B018 (likewise a bench)
 
     @property
     def cavity(self) -> CavityConfig:
         """The simulated cavity: the nominal one with the plant's parameters."""
         return replace(NOMINAL, **self.plant)
+
+    @property
+    def bench_config(self) -> BenchConfig:
+        """The emulated bench (ideal unless :attr:`bench` says otherwise)."""
+        return BenchConfig(**self.bench)
 
     @property
     def run_settings(self) -> dict:
@@ -90,6 +101,7 @@ class RunSpec:
                 'initial_angles': random_initial_angles(self.seed).tolist(),
                 'measurement_noise': self.measurement_noise,
                 'measurement_round_trips': self.measurement_round_trips,
+                **({'bench': dict(self.bench)} if self.bench else {}),
                 'plant': plant_parameters(self.cavity),
                 'plant_fingerprint': plant_fingerprint(self.cavity)}
 
@@ -111,7 +123,8 @@ def run_fast(spec: RunSpec, models_dir: Path, controller: Controller | None = No
                            random_initial_angles(spec.seed), cavity_config=spec.cavity,
                            estimator=estimator, meta=spec.meta(models_dir), progress=progress,
                            measurement_noise=spec.measurement_noise, noise_seed=spec.seed,
-                           measurement_round_trips=spec.measurement_round_trips)
+                           measurement_round_trips=spec.measurement_round_trips,
+                           bench=spec.bench_config)
 
 
 def run_spec(spec: RunSpec, models_dir: Path, run_dir: Path, domain_id: int = 88,
@@ -128,7 +141,8 @@ def run_spec(spec: RunSpec, models_dir: Path, run_dir: Path, domain_id: int = 88
                      domain_id, lockstep=spec.mode == 'graph-lockstep',
                      models_dir=models_dir, meta=spec.meta(models_dir),
                      plant=[f'{k}={v!r}' for k, v in spec.plant.items()],
-                     measurement_round_trips=spec.measurement_round_trips)
+                     measurement_round_trips=spec.measurement_round_trips,
+                     bench=[f'{k}={v!r}' for k, v in spec.bench.items()])
 
 
 def setting_strings(settings: dict[str, object]) -> list[str]:

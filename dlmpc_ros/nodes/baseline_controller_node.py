@@ -82,10 +82,9 @@ class BaselineControllerNode(ControllerNodeBase):
         fault = itf.vector_fault(msg.data, itf.SIM_TRUTH_FIELDS, 1e300)
         if fault is not None:
             return self._warn.dropped(itf.TOPIC_SIM_TRUTH, fault)
-        if int(msg.data[0]) % self.period == 0:
-            self._truth[int(msg.data[0])] = msg.data[1]
-            while len(self._truth) > 64:
-                self._truth.pop(next(iter(self._truth)))
+        self._truth[int(msg.data[0])] = msg.data[1]  # a decision may come at any round trip
+        while len(self._truth) > 1024:
+            self._truth.pop(next(iter(self._truth)))
         return None
 
     def before_step(self, state: np.ndarray) -> None:

@@ -24,6 +24,24 @@ def test_commands_apply_from_the_next_round_trip_at_servo_speed():
     np.testing.assert_allclose(record.angles[-1], target)
 
 
+def test_with_slow_servos_a_decision_waits_until_the_encoders_read_the_command():
+    from dlmpc_ros.core.bench import BenchConfig
+    target = np.array([0.5, -0.5, 0.2, 0.1])
+    bench = BenchConfig(servo_lag=6, slew_rate=0.04, encoder_noise=0.001)
+    record = run_closed_loop(FixedBestController(target, AngleLimits(max_step=0.25)),
+                             make_scenario('constant', offset=0.1), 200, period=10,
+                             initial_angles=np.zeros(4), cavity_config=SMALL, bench=bench,
+                             settle_tolerance=0.005)
+    decided = record.control_round_trip
+    # each 0.25 rad move: 6 round trips of lag, reached on the 7th of turning, settled
+    # for 10 round trips counting that one
+    np.testing.assert_array_equal(np.diff(decided[:3]), [22, 22])
+    moving = np.abs(np.diff(record.angles, axis=0)).max(axis=1)
+    assert 0.0 < moving.max() <= 0.04 + 1e-12                  # the optic turns at the slew
+    np.testing.assert_allclose(record.angles[-1], target)       # the record: the true angles
+    assert record.meta['bench']['servo_lag'] == 6
+
+
 def test_same_seed_same_run_and_the_oracle_sees_the_true_k():
     scenario = make_scenario('steps', times=[20.0], values=[0.2])
     table_k = np.array([-0.3, 0.0, 0.3])

@@ -28,12 +28,15 @@ CHECK = [sys.executable, '-m', 'dlmpc_ros.cli.check_laser', '--timeout', '30']
 class FakeLaserNode(Node):
     """A laser with one fault: ``nan`` publishes M = NaN every 25th round trip; ``deaf``
     never applies a command and publishes no status; ``clamps`` clamps out-of-range angles
-    to [-pi, pi] instead of dropping the message."""
+    to [-pi, pi] instead of dropping the message; ``slow`` has servos that start 6 round
+    trips after a command and turn 0.04 rad per round trip (a full step of 0.25 rad takes
+    13 round trips)."""
 
     def __init__(self, mode: str) -> None:
         super().__init__('fake_laser')
         self.mode = mode
         self.angles = [-0.39, -0.25, 0.52, -0.14]
+        self.target, self.lag = list(self.angles), 0
         self.round_trip = 0
         self.counts = dict.fromkeys(itf.LASER_STATUS_FIELDS[2:], 0)
         self.pubs = {topic: self.create_publisher(Float64MultiArray, topic, QOS[topic])
@@ -53,11 +56,19 @@ class FakeLaserNode(Node):
                 self.mode != 'clamps' and max(map(abs, data)) > 2 * math.pi):
             self.counts['messages_rejected'] += 1
             return
-        self.angles = [min(max(a, -math.pi), math.pi) for a in data]
+        self.target = [min(max(a, -math.pi), math.pi) for a in data]
+        self.lag = 6 if self.mode == 'slow' else 0
+        if self.mode != 'slow':
+            self.angles = list(self.target)
         self.counts['commands_received'] += 1
 
     def _round_trip(self) -> None:
         self.round_trip += 1
+        if self.lag > 0:
+            self.lag -= 1
+        else:
+            self.angles = [a + min(max(t - a, -0.04), 0.04)
+                           for a, t in zip(self.angles, self.target)]
         e, m = 4.0, 30.0
         if self.mode == 'nan' and self.round_trip % 25 == 0:
             m = math.nan
@@ -105,18 +116,22 @@ def test_laser_sim_passes_every_check(ros_env, tmp_path):
     assert 'dropped a message on /laser/angles_cmd' in log and 'Traceback' not in log
 
 
-@pytest.mark.parametrize('mode, failing, why', [
-    ('nan', ['(a) state stream'], 'M is nan'),
-    ('deaf', ['(c) angle commands', '(d) malformed commands', '(e) status'], 'not reached'),
-    ('clamps', ['(d) malformed commands'], 'it applied the'),
+@pytest.mark.parametrize('mode, failing, why, extra', [
+    ('nan', ['(a) state stream'], 'M is nan', []),
+    ('deaf', ['(c) angle commands', '(d) malformed commands', '(e) status'], 'not reached',
+     []),
+    ('clamps', ['(d) malformed commands'], 'it applied the', []),
+    ('slow', ['(c) angle commands'], 'set their settle_timeout above 1',
+     ['--max-round-trips', '10']),
 ])
-def test_a_broken_laser_fails_the_check_it_breaks(ros_env, tmp_path, mode, failing, why):
+def test_a_broken_laser_fails_the_check_it_breaks(ros_env, tmp_path, mode, failing, why,
+                                                  extra):
     log = tmp_path / 'fake.log'
     with open(log, 'wb') as handle:
         fake = subprocess.Popen([sys.executable, '-m', 'test.nodes.test_check_laser', mode],
                                 env=ros_env, cwd=ROOT, stdout=handle, stderr=subprocess.STDOUT)
         try:
-            proc = _check(ros_env, '--duration', '2')
+            proc = _check(ros_env, '--duration', '2', *extra)
         finally:
             fake.terminate()
             fake.wait(30)
@@ -125,6 +140,8 @@ def test_a_broken_laser_fails_the_check_it_breaks(ros_env, tmp_path, mode, faili
     result = out.strip().splitlines()[-1]
     assert result.startswith('result: FAIL') and all(name in result for name in failing), out
     assert why in out, out
+    if mode == 'slow':  # the settle time of a full step (lag 6, 7 round trips of turning)
+        assert 'a full step (0.25 rad) settles in 1' in out, out
 
 
 def test_no_laser_and_bad_arguments_exit_2(ros_env):
@@ -143,13 +160,13 @@ def _row(rt: float, angles=(0.1, 0.2, 0.3, 0.4), e: float = 4.0, m: float = 30.0
     return [rt, e, m, e / m, e * e, 1.0, *angles]
 
 
-def test_state_stream_flags_round_trips_the_controller_never_sees():
+def test_state_stream_flags_round_trips_that_do_not_increase_and_stalls():
     settings = cf.Settings(period=10)
     steady = _states([_row(r) for r in range(1, 101)])
     assert cf.check_state_stream(steady, 0.0, 1.0, settings).status == cf.PASS
-    sevens = _states([_row(r) for r in range(7, 707, 7)])  # every 7th round trip published
-    result = cf.check_state_stream(sevens, 0.0, 1.0, settings)
-    assert result.status == cf.FAIL and 'multiples of the control period' in result.problems[0]
+    sevens = _states([_row(r) for r in range(7, 707, 7)])  # every 7th round trip published:
+    result = cf.check_state_stream(sevens, 0.0, 1.0, settings)  # decisions need no multiple
+    assert result.status == cf.PASS and 'round_trip steps 7..7' in result.summary
     repeated = _states([_row(r // 2) for r in range(2, 202)])
     result = cf.check_state_stream(repeated, 0.0, 1.0, settings)
     assert any('did not increase' in p for p in result.problems)

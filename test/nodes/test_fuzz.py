@@ -84,6 +84,11 @@ def state(round_trip: int, angles=ANGLES) -> list[float]:
     return [round_trip, 3.2, 18.0, 3.2 / 18.0, 3.2, 1.0, *angles]
 
 
+def measurement(round_trip: int) -> list[float]:
+    """A /controller/measurement: settled, its settle time not measured."""
+    return [round_trip, 3.2, 18.0, *ANGLES, 1.0, -1.0]
+
+
 # -- the harness ------------------------------------------------------------------------
 
 @pytest.fixture
@@ -203,29 +208,32 @@ def test_drift_injector(ros_env, tmp_path, probe):
 def test_vae_estimator(ros_env, tmp_path, probe):
     fuzz = Fuzz(probe, [itf.TOPIC_ESTIMATE])
     estimates = fuzz.boxes[itf.TOPIC_ESTIMATE]
-    node = _start('dlmpc_ros.nodes.vae_estimator_node', ros_env, tmp_path, 'period:=10')
+    node = _start('dlmpc_ros.nodes.vae_estimator_node', ros_env, tmp_path)
     try:
-        probe.wait_matched(itf.TOPIC_STATE)
+        probe.wait_matched(itf.TOPIC_MEASUREMENT)
         round_trip = 0
         while fuzz.sent < FUZZ_COUNT:
-            round_trip += 20  # checkpoints; odd states at the period between them
-            fuzz.send_malformed(itf.TOPIC_STATE, 250, state(round_trip), [], round_trip=True)
+            round_trip += 20  # checkpoints; odd measurements between them
+            good = measurement(round_trip)
+            fuzz.send_malformed(itf.TOPIC_MEASUREMENT, 250, good, [], round_trip=True)
             for _ in range(3):
-                probe.publish(itf.TOPIC_STATE, odd_state(fuzz.rng, round_trip - 10))
-            probe.publish(itf.TOPIC_STATE, state(round_trip), itf.STATE_FIELDS)
+                odd = odd_state(fuzz.rng, round_trip - 10)
+                probe.publish(itf.TOPIC_MEASUREMENT, [*odd[:3], *odd[6:], 1.0, -1.0])
+            probe.publish(itf.TOPIC_MEASUREMENT, good, itf.MEASUREMENT_FIELDS)
             probe.spin_until(lambda: estimates and estimates[-1].data[0] == round_trip,  # noqa: B023
                              30, f'the estimate of round trip {round_trip}')
         fuzz.check_published()
     finally:
         code = node.stop()
-    fuzz.check_log(node, code, [itf.TOPIC_STATE])
+    fuzz.check_log(node, code, [itf.TOPIC_MEASUREMENT])
 
 
 def test_mpc_controller(ros_env, tmp_path, probe):
     fuzz = Fuzz(probe, [itf.TOPIC_ANGLES_CMD, itf.TOPIC_CONTROLLER_STATUS])
     status = fuzz.boxes[itf.TOPIC_CONTROLLER_STATUS]
+    probe.listen(itf.TOPIC_MEASUREMENT)  # as the estimator does: the controller reads
     node = _start('dlmpc_ros.nodes.mpc_controller_node', ros_env, tmp_path, 'period:=10',
-                  'estimator_timeout:=5.0')
+                  'estimator_timeout:=5.0', 'settle_tolerance:=1.0')  # fixed angles
     try:
         probe.wait_matched(itf.TOPIC_STATE)
         probe.wait_matched(itf.TOPIC_ESTIMATE)
@@ -286,8 +294,11 @@ def _baseline_models(tmp_path) -> str:
 def test_baseline_controller(ros_env, tmp_path, probe, name):
     fuzz = Fuzz(probe, [itf.TOPIC_ANGLES_CMD, itf.TOPIC_CONTROLLER_STATUS])
     status = fuzz.boxes[itf.TOPIC_CONTROLLER_STATUS]
+    # settle_timeout = period: a decision every period, settled or not (an odd state's
+    # angles make a command that the next states' angles never reach)
     node = _start('dlmpc_ros.nodes.baseline_controller_node', ros_env, tmp_path, 'period:=10',
-                  f'controller:={name}', f"models_dir:='{_baseline_models(tmp_path)}'")
+                  'settle_timeout:=10', f'controller:={name}',
+                  f"models_dir:='{_baseline_models(tmp_path)}'")
     topics = [itf.TOPIC_STATE] + [itf.TOPIC_SIM_TRUTH] * (name == 'oracle')
     try:
         for topic in topics:

@@ -58,6 +58,7 @@ SETTLE = 2.0
 STATE = [0.0, 3.2, 18.0, 3.2 / 18.0, 3.2, 1.0, -0.39, -0.25, 0.52, -0.14]
 #: A valid message per subscribed topic (element 0, a round trip, is filled in).
 VALID = {itf.TOPIC_STATE: STATE, itf.TOPIC_ESTIMATE: [0.0, 0.2, 0.5, 0.2, 0.1],
+         itf.TOPIC_MEASUREMENT: [0.0, *STATE[1:3], *STATE[6:], 1.0, -1.0],
          itf.TOPIC_SIM_TRUTH: [0.0, 0.1], itf.TOPIC_ANGLES_CMD: STATE[6:],
          itf.TOPIC_BIREFRINGENCE: [0.05]}
 

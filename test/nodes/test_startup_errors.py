@@ -58,10 +58,8 @@ CASES = {
     'drift-huge-sigma': (DRIFT, ['-p', 'scenario:=random_walk', '-p', 'sigma:=1e300'],
                          ['random_walk: sigma must be in [0, 0.6]']),
     # vae_estimator
-    'estimator-negative-period': (ESTIMATOR, ['-p', 'period:=-10'],
-                                  ['period = -10 is outside its range [1, 1e+06]']),
-    'estimator-period-type': (ESTIMATOR, ['-p', 'period:=2.5'], ["parameter 'period'",
-                                                                 "expecting type 'INTEGER'"]),
+    'estimator-models-dir-type': (ESTIMATOR, ['-p', 'models_dir:=2.5'],
+                                  ["parameter 'models_dir'", "expecting type 'STRING'"]),
     'estimator-no-models': (ESTIMATOR, ['-p', 'models_dir:={tmp}/nowhere'],
                             ['vae_encoder.npz is missing', 'dlmpc-train vae']),
     'estimator-corrupt': (ESTIMATOR, ['-p', 'models_dir:={models}'],
