@@ -64,3 +64,23 @@ def test_a_controller_below_its_lock_threshold_warns():
 def test_a_level_is_ok_warn_or_error():
     with pytest.raises(ValueError, match='OK, WARN or ERROR'):
         Health(3, 'stale')
+
+
+def test_the_settle_watch_reports_settle_times_and_warns_once_per_unsettled_decision():
+    from dlmpc_ros.health import SettleWatch
+    watch = SettleWatch()
+    for settled, time in ((True, 13), (True, None), (True, 15), (True, 14)):
+        watch.add(settled, time)
+    quiet = Findings()
+    watch.report(quiet, timeout=100, tolerance=0.005)
+    assert not quiet.warnings
+    assert quiet.values['settle_round_trips_median'] == 14.0
+    assert quiet.values['settle_round_trips_max'] == 15
+    watch.add(False, None)
+    late = Findings()
+    watch.report(late, timeout=100, tolerance=0.005)
+    assert late.values['decisions_unsettled'] == 1
+    assert 'settle_timeout = 100' in late.warnings[0] and '14 round trips' in late.warnings[0]
+    again = Findings()
+    watch.report(again, timeout=100, tolerance=0.005)  # nothing new since the last report
+    assert not again.warnings
