@@ -123,11 +123,13 @@ class RoundTripResult:
                     tolerance: float) -> RoundTripResult:
         """Build from the kernel's (R, B, 7) array; rows are numbered from first_round_trip."""
         finite = np.isfinite(obs).all(axis=-1)
-        obs = np.where(finite[..., None], obs, np.nan)
+        if not finite.all():
+            obs = np.where(finite[..., None], obs, np.nan)
         cols = {name: obs[..., i] for i, name in enumerate(kernels.OBSERVABLES)}
-        rows = first_round_trip + np.arange(obs.shape[0])
+        rounds, batch = obs.shape[:2]
+        rows = np.repeat(np.arange(first_round_trip, first_round_trip + rounds), batch)
         return cls(
-            round_trip=np.broadcast_to(rows[:, None], obs.shape[:2]).copy(),
+            round_trip=rows.reshape(rounds, batch),
             energy=cols['energy'], E=cols['E'], M=cols['M'], O=cols['O'], peak=cols['peak'],
             change=cols['change'],
             pulses=np.where(finite, cols['pulses'], -1).astype(np.int64),
@@ -139,7 +141,7 @@ class RoundTripResult:
         """The last round trip of a multi-round-trip result, as (B,) arrays."""
         if self.E.ndim == 1:
             return self
-        return RoundTripResult(**{k: v[-1] for k, v in self.__dict__.items()})
+        return RoundTripResult(*(v[-1] for v in self.__dict__.values()))
 
     def laser(self, index: int) -> dict[str, float | int | bool]:
         """Plain-Python values of one laser (last round trip)."""
