@@ -19,6 +19,14 @@ random angles and a noise field, K drawn per start, ``--budget`` round trips eac
 (:mod:`dlmpc_ros.evaluation.lock_benchmark`); writes ``OUT/lock.json`` and
 ``OUT/lock.png``.
 
+``--suite stress`` runs the stress suite instead of ``--scenario`` (fast mode): 16
+conditions (four drifts over the whole K range, each on ideal servos, the ``servo-3`` and
+``servo-6`` benches and with 1 % detector noise, :mod:`dlmpc_ros.evaluation.suites`),
+seeds 1-3 and every built-in controller unless ``--seed`` / ``--controller`` say
+otherwise; besides the usual outputs it writes ``OUT/stress.md`` and ``OUT/stress.json``
+(plant x condition x controller). Its lock part is ``--benchmark lock --lock-k 0.3`` and
+``--lock-k -0.3``.
+
 ``dlmpc-evaluate --bag DIR [--bag DIR ...] --out OUT`` does the same for runs recorded
 with ``bringup --record`` (or the recorder node): the same metrics, table and figures as
 a live run. A bag without ``/laser/sim_truth`` (a real laser) gets the metrics that need
@@ -53,6 +61,8 @@ from dlmpc_ros.evaluation.report import (lock_table, measure, summary_line, writ
                                          write_summary)
 from dlmpc_ros.evaluation.record import RunRecord
 from dlmpc_ros.evaluation.runs import RunSpec, RunTask, run_spec, run_task
+from dlmpc_ros.evaluation.suites import (STRESS_LOCK_K, SUITE_CONTROLLERS, SUITE_SEEDS, SUITES,
+                                         over_envelope, over_envelope_warning, write_suite)
 from dlmpc_ros.learning.model_files import ModelFileError
 from dlmpc_ros.learning.tables import load_baselines
 from dlmpc_ros.paths import models_dir as default_models_dir
@@ -64,6 +74,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog='dlmpc-evaluate', description=__doc__.split('\n\n')[0])
     p.add_argument('--scenario', action='append', choices=SCENARIOS,
                    help='drift scenario, repeatable (default: sinusoidal)')
+    p.add_argument('--suite', choices=tuple(SUITES),
+                   help='run a benchmark suite of conditions (scenario, settings and bench) '
+                        'instead of --scenario, in fast mode: stress = the whole K range on '
+                        'ideal and slow servos and with 1 %% detector noise, seeds 1-3 and '
+                        'every built-in controller by default (docs/evaluation.md); writes '
+                        'OUT/stress.md and OUT/stress.json')
     p.add_argument('--scenario-param', action='append', default=[], metavar='KEY=VALUE',
                    help='scenario setting, repeatable; applies to every scenario that takes it')
     p.add_argument('--controller', action='append', metavar='NAME|MODULE:FACTORY',
@@ -101,9 +117,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         f'{", ".join(PHYSICS_FIELDS)}); the simulator and the evaluation '
                         'see it, no controller does')
     p.add_argument('--plant-family', action='append', type=int, default=[], metavar='SEED',
-                   help='a plant drawn from the family of core/plants.py, repeatable')
+                   help='a plant drawn from the family of core/plants.py, repeatable '
+                        '(development plants: 1-8 with --nominal; held-out: 101-108, for '
+                        'reports only)')
     p.add_argument('--nominal', action='store_true',
-                   help='also run the nominal cavity (the default without plant options)')
+                   help='also run the nominal cavity (the default without plant options; '
+                        'a development plant)')
     p.add_argument('--benchmark', choices=('drift', 'lock'), default='drift',
                    help='drift: the scenarios (default); lock: the auto-mode-locking '
                         'benchmark of cold starts')
@@ -111,6 +130,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument('--budget', type=int, default=1000, help='lock: round trips per start')
     p.add_argument('--lock-drift', choices=DRIFTS, default='held',
                    help='lock: K held at its draw, or drifting slowly around it')
+    p.add_argument('--lock-k', type=float, metavar='K',
+                   help='lock: K of every start (its drift starts there) instead of a '
+                        f'uniform draw in [-0.3, 0.3]; the stress suite runs '
+                        f'{" and ".join(f"{k:+g}" for k in STRESS_LOCK_K)}')
     p.add_argument('--workers', type=int, default=default_workers(),
                    help='fast runs, plant draws and envelopes on this many local Dask '
                         'workers (1: in this process; default: the cores, %(default)s)')
@@ -125,6 +148,21 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument('--out', type=Path, required=True, help='output directory')
     args = p.parse_args(argv)
     args.models_dir = args.models_dir or default_models_dir()
+    if args.suite:
+        clash = [name for name, given in (
+            ('--scenario', args.scenario), ('--scenario-param', args.scenario_param),
+            ('--bench', args.bench), ('--measurement-noise', args.measurement_noise),
+            ('--free-run', args.free_run), ('--bag', args.bag),
+            ('--benchmark lock', args.benchmark == 'lock')) if given]
+        if clash:
+            p.error(f'--suite sets the scenarios, benches and noise of its conditions and '
+                    f'runs fast drift runs; it takes no {", ".join(clash)}')
+        args.fast = True
+        args.conditions = SUITES[args.suite]()
+        args.seed = args.seed or list(SUITE_SEEDS[args.suite])
+        args.controller = args.controller or list(SUITE_CONTROLLERS[args.suite])
+    if args.lock_k is not None and (args.benchmark != 'lock' or not -0.3 <= args.lock_k <= 0.3):
+        p.error('--lock-k applies to --benchmark lock and must be in [-0.3, 0.3]')
     if args.workers < 1 or args.starts < 1 or args.budget < 1:
         p.error('--workers, --starts and --budget must be >= 1')
     try:
@@ -156,7 +194,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         p.error('--benchmark lock draws its own starts; it takes no --scenario or --seed')
     if args.bag:
         return args
-    args.scenario = args.scenario or ['sinusoidal']
+    args.scenario = (list(dict.fromkeys(c.scenario for c in args.conditions.values()))
+                     if args.suite else args.scenario or ['sinusoidal'])
     args.controller = args.controller or ['dlmpc']
     args.seed = args.seed or [1]
     if args.round_trips < 1 or args.period < 1:
@@ -176,6 +215,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 def run_specs(args: argparse.Namespace, plant: dict | None = None) -> list[RunSpec]:
     """The runs the arguments ask for on one plant: scenarios x seeds x controllers."""
     mode = 'fast' if args.fast else ('graph-free-run' if args.free_run else 'graph-lockstep')
+    if args.suite:  # conditions x seeds x controllers
+        return [RunSpec(c.scenario, seed, controller, dict(c.settings), args.round_trips,
+                        args.period, args.max_step, 0.0, mode, dict(plant or {}),
+                        measurement_round_trips=args.measurement_round_trips,
+                        bench=dict(c.bench), condition=c.name)
+                for c, seed, controller in itertools.product(args.conditions.values(),
+                                                             args.seed, args.controller)]
     return [RunSpec(scenario, seed, controller, args.settings[scenario], args.round_trips,
                     args.period, args.max_step, args.measurement_noise, mode, dict(plant or {}),
                     measurement_round_trips=args.measurement_round_trips, bench=args.bench)
@@ -329,9 +375,10 @@ def drift_benchmark(args: argparse.Namespace, plants: list[Plant], started: floa
         metrics = measure(record, plant.envelope, run_dir)
         runs.append({'plant': plant.label, 'scenario': spec.scenario, 'seed': spec.seed,
                      'controller': spec.controller, 'metrics': metrics, 'meta': record.meta,
-                     'record': record})
-        print(f'{plant.label} {spec.scenario} seed {spec.seed} {spec.controller}: '
-              f'{summary_line(metrics)}', flush=True)
+                     'record': record, **({'condition': spec.condition} if spec.condition
+                                          else {})})
+        print(f'{plant.label} {spec.condition or spec.scenario} seed {spec.seed} '
+              f'{spec.controller}: {summary_line(metrics)}', flush=True)
     for plant in plants:
         mine = [r for r in runs if r['plant'] == plant.label]
         if not mine:
@@ -340,7 +387,8 @@ def drift_benchmark(args: argparse.Namespace, plants: list[Plant], started: floa
         out.mkdir(parents=True, exist_ok=True)
         write_summary(out, [{k: v for k, v in r.items() if k != 'record'} for r in mine],
                       plant=plant.parameters)
-        for scenario_name, seed in itertools.product(args.scenario, args.seed):
+        for scenario_name, seed in itertools.product([] if args.suite else args.scenario,
+                                                     args.seed):  # no figures of a suite
             group = {r['controller']: r['record'] for r in mine
                      if r['scenario'] == scenario_name and r['seed'] == seed}
             if not group:
@@ -356,8 +404,21 @@ def drift_benchmark(args: argparse.Namespace, plants: list[Plant], started: floa
         write_plant_table(args.out, [{k: v for k, v in r.items() if k != 'record'}
                                      for r in runs], {p.label: p.parameters for p in plants},
                           round(time.monotonic() - started, 1), args.workers)
-    print(f'dlmpc-evaluate: wrote {args.out}/metrics.json, table.md and figures/ '
-          f'({len(runs)} runs, {failed} failed, {time.monotonic() - started:.0f} s)')
+    summaries = [{k: v for k, v in r.items() if k != 'record'} for r in runs]
+    if args.suite:
+        write_suite(args.out, args.suite, args.conditions, summaries,
+                    {p.label: p.parameters for p in plants},
+                    {'seeds': args.seed, 'controllers': args.controller,
+                     'round_trips': args.round_trips, 'period': args.period,
+                     'max_step': args.max_step,
+                     'measurement_round_trips': args.measurement_round_trips,
+                     'workers': args.workers,
+                     'wall_seconds': round(time.monotonic() - started, 1)})
+    for run in over_envelope(summaries):
+        print(f'dlmpc-evaluate: {over_envelope_warning(run)}', file=sys.stderr)
+    print(f'dlmpc-evaluate: wrote {args.out}/metrics.json, table.md'
+          + (f', {args.suite}.md, {args.suite}.json' if args.suite else ' and figures/')
+          + f' ({len(runs)} runs, {failed} failed, {time.monotonic() - started:.0f} s)')
     return 1 if failed else 0
 
 
@@ -369,11 +430,13 @@ def _finished(run_dir: Path, spec: RunSpec, models_dir: Path) -> RunRecord | Non
         # absent, cut short by a kill, or not a record
         return None
     wanted = json.loads(json.dumps(spec.meta(models_dir)))
+    if spec.bench:  # the record keeps every bench setting, the spec those not ideal
+        wanted['bench'] = spec.bench_config.to_dict()
     return record if all(record.meta.get(k) == v for k, v in wanted.items()) else None
 
 
 def _run_dir(out: Path, plant: Plant, spec: RunSpec, nested: bool) -> Path:
-    name = f'{spec.scenario}-s{spec.seed}-{label(spec.controller)}'
+    name = f'{spec.condition or spec.scenario}-s{spec.seed}-{label(spec.controller)}'
     return (out / plant.label / name) if nested else out / name
 
 
@@ -384,7 +447,7 @@ def lock_benchmark(args: argparse.Namespace, plants: list[Plant], started: float
     for plant in plants:
         for controller in args.controller:
             spec = LockSpec(controller, args.starts, args.budget, period=args.period,
-                            max_step=args.max_step, drift=args.lock_drift,
+                            max_step=args.max_step, drift=args.lock_drift, k=args.lock_k,
                             plant=dict(plant.parameters), bench=dict(args.bench))
             for first in range(0, args.starts, per_task):
                 jobs.append((plant.label, controller, spec))
@@ -398,7 +461,8 @@ def lock_benchmark(args: argparse.Namespace, plants: list[Plant], started: float
     for failure in failed:
         print(f'dlmpc-evaluate: {failure}', file=sys.stderr)
     summary: dict = {'settings': {'starts': args.starts, 'budget': args.budget,
-                                  'drift': args.lock_drift, 'hold_periods': 20,
+                                  'drift': args.lock_drift, 'K': args.lock_k,
+                                  'hold_periods': 20,
                                   'lock_fraction': 0.5, 'period': args.period},
                      'plants': {}}
     for plant in plants:

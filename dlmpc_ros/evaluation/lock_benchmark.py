@@ -4,10 +4,11 @@ The experimental literature scores auto-mode-locking by random cold starts (gene
 algorithms: Woodward and Kelleher, Sci. Rep. 2016; Pu et al. 2019; deep RL: Li et al.,
 Photonics Research 2022). Here every start has random angles (uniform in [-pi/2, pi/2))
 and the ``noise`` initial field (a real laser starts from spontaneous emission), a K
-drawn uniformly from [-0.3, 0.3], held or drifting slowly (a random walk around it, the
-``drift`` option), and a budget of round trips. A start is locked once O >= 0.5
-O*(K(t)) has held for 20 control periods; its time to lock is the round trip at which
-that hold began. The same start (angles, K, field) is given to every controller.
+drawn uniformly from [-0.3, 0.3] (or one fixed K: ``LockSpec.k``), held or drifting
+slowly (a random walk around it, the ``drift`` option), and a budget of round trips. A
+start is locked once O >= 0.5 O*(K(t)) has held for 20 control periods; its time to lock
+is the round trip at which that hold began. The same start (angles, K, field) is given
+to every controller.
 """
 
 from __future__ import annotations
@@ -56,6 +57,9 @@ class LockSpec:
     correlation time 5,000 round trips)."""
     seed: int = 0
     """Seed of the starts (the same for every controller)."""
+    k: float | None = None
+    """K of every start (held, or where its drift starts) instead of the uniform draw
+    (None); the angles and noise fields are the same either way."""
     plant: dict = field(default_factory=dict)
     """Physical parameters of the simulated cavity that differ from the nominal one."""
 
@@ -71,6 +75,8 @@ class LockSpec:
         if self.drift not in DRIFTS:
             raise ValueError(f'LockSpec.drift must be one of {DRIFTS}, got {self.drift!r}')
         BenchConfig(**self.bench)
+        if self.k is not None and not -0.3 <= self.k <= 0.3:
+            raise ValueError(f'LockSpec.k must be in [-0.3, 0.3] or None, got {self.k!r}')
         if not set(self.plant) <= set(PHYSICS_FIELDS):
             raise ValueError(f'LockSpec.plant sets {sorted(set(self.plant) - set(PHYSICS_FIELDS))}'
                              f', not physical parameters {PHYSICS_FIELDS}')
@@ -119,6 +125,7 @@ def run_starts(task: LockTask) -> list[dict]:
     out = []
     for index in task.indices:
         angles, k0, noise_seed = start_conditions(spec.seed, index)
+        k0 = k0 if spec.k is None else float(spec.k)
         scenario = (Constant(offset=k0) if spec.drift == 'held' else
                     RandomWalk(offset=k0, sigma=0.05, correlation_time=5000.0,
                                seed=noise_seed))

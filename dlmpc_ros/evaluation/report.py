@@ -17,6 +17,11 @@ TABLE_KEYS = ('oracle_ratio', 'oracle_controller_ratio', 'locked_fraction',
               'step_latency_ms_p99', 'track_estimate_abs_r', 'estimator_abs_r')
 
 
+def run_case(run: dict) -> str:
+    """What a table's row names a run by: its suite condition, else its scenario."""
+    return run.get('condition') or run['scenario']
+
+
 def measure(record: RunRecord, envelope: dict, run_dir: Path, **extra) -> dict:
     """The run's metrics (plus ``extra``), saved with its record in ``run_dir``."""
     metrics = {**run_metrics(record, envelope), **extra,
@@ -45,7 +50,7 @@ def markdown_table(rows: list[dict]) -> str:
     head = ['scenario', 'seed', 'controller', *TABLE_KEYS]
     lines = ['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head)]
     for row in rows:
-        cells = [row['scenario'], str(row['seed']), row['controller']]
+        cells = [run_case(row), str(row['seed']), row['controller']]
         for key in TABLE_KEYS:
             value = row['metrics'].get(key)
             cells.append('-' if value is None else (f'{value:.3f}' if isinstance(value, float)
@@ -59,19 +64,19 @@ def add_oracle_controller_ratio(runs: list[dict]) -> None:
     controller's run on the same scenario and seed (when the oracle ran too). The envelope
     O*(K) is the point-wise best over branches, which no controller holds; the oracle
     controller's branch-continuous path is the best reached in closed loop."""
-    oracle = {(r['scenario'], r['seed']): r['metrics']['mean_O'] for r in runs
+    oracle = {(run_case(r), r['seed']): r['metrics']['mean_O'] for r in runs
               if r['controller'] == 'oracle'}
     for run in runs:
-        reference = oracle.get((run['scenario'], run['seed']))
+        reference = oracle.get((run_case(run), run['seed']))
         mean_o = run['metrics'].get('mean_O')
         if reference and mean_o is not None:
             run['metrics']['oracle_controller_ratio'] = mean_o / reference
 
 
 def seed_summary(runs: list[dict]) -> str:
-    """Markdown table of oracle_ratio per scenario (rows) and controller (columns): the
-    mean over seeds and, with several seeds, the range."""
-    scenarios = list(dict.fromkeys(r['scenario'] for r in runs))
+    """Markdown table of oracle_ratio per scenario or suite condition (rows) and
+    controller (columns): the mean over seeds and, with several seeds, the range."""
+    scenarios = list(dict.fromkeys(run_case(r) for r in runs))
     controllers = list(dict.fromkeys(r['controller'] for r in runs))
     lines = ['| scenario | ' + ' | '.join(controllers) + ' |',
              '|---|' + '---|' * len(controllers)]
@@ -79,7 +84,7 @@ def seed_summary(runs: list[dict]) -> str:
         cells = []
         for controller in controllers:
             values = [r['metrics']['oracle_ratio'] for r in runs
-                      if r['scenario'] == scenario and r['controller'] == controller
+                      if run_case(r) == scenario and r['controller'] == controller
                       and r['metrics'].get('oracle_ratio') is not None]
             if not values:
                 cells.append('-')
@@ -111,8 +116,8 @@ def plant_table(runs: list[dict], value: str = 'oracle_ratio') -> str:
     """Markdown: plant (rows) x controller (columns) per scenario, the mean of ``value``
     over seeds (min-max)."""
     lines = []
-    for scenario in dict.fromkeys(r['scenario'] for r in runs):
-        mine = [r for r in runs if r['scenario'] == scenario]
+    for scenario in dict.fromkeys(run_case(r) for r in runs):
+        mine = [r for r in runs if run_case(r) == scenario]
         controllers = list(dict.fromkeys(r['controller'] for r in mine))
         lines += [f'{scenario}:', '', '| plant | ' + ' | '.join(controllers) + ' |',
                   '|---|' + '---|' * len(controllers)]
@@ -147,8 +152,9 @@ def write_plant_table(out: Path, runs: list[dict], plants: dict[str, dict],
 def lock_table(summary: dict) -> str:
     """Markdown of the lock benchmark: success rate and times per plant and controller."""
     s = summary['settings']
+    held = f"K {s['drift']}" + ('' if s.get('K') is None else f" at {s['K']:+g}")
     lines = [f"Auto-mode-locking: {s['starts']} cold starts per plant (random angles, noise "
-             f"field, K {s['drift']}), budget {s['budget']} round trips; locked = O >= "
+             f"field, {held}), budget {s['budget']} round trips; locked = O >= "
              f"{s['lock_fraction']} O*(K) for {s['hold_periods']} periods.", '',
              '| plant | controller | success | median round trips | p90 round trips | '
              'median periods |', '|---|---|---|---|---|---|']

@@ -59,6 +59,10 @@ class RunSpec:
     """The lab bench's settings that differ from an ideal one (servos, encoders,
     detectors: :class:`~dlmpc_ros.core.bench.BenchConfig`); fast runs emulate them, graph
     runs pass them to laser_sim."""
+    condition: str = ''
+    """Label of the suite condition the run belongs to
+    (:mod:`~dlmpc_ros.evaluation.suites`; empty outside a suite): it names the run's
+    folder, so two conditions on one scenario keep their runs apart."""
 
     def __post_init__(self) -> None:
         if self.scenario not in PRESETS:
@@ -102,6 +106,7 @@ class RunSpec:
                 'measurement_noise': self.measurement_noise,
                 'measurement_round_trips': self.measurement_round_trips,
                 **({'bench': dict(self.bench)} if self.bench else {}),
+                **({'condition': self.condition} if self.condition else {}),
                 'plant': plant_parameters(self.cavity),
                 'plant_fingerprint': plant_fingerprint(self.cavity)}
 
