@@ -48,8 +48,8 @@ def initial_field(grid: Grid, kind: str = 'sech', batch: int = 1,
 
 @lru_cache(maxsize=16)
 def scheme_tables(config: CavityConfig) -> tuple[np.ndarray, ...]:
-    """What :func:`kernels.run_scheme_serial` takes for ``config.scheme`` (any but the
-    default 'strang', which has its own kernel), computed once per configuration.
+    """What :func:`kernels.run_scheme_serial` takes for ``config.scheme``, computed once per
+    configuration ('strang' runs its own kernel; here it is a composition of one step).
 
     Returns ``weights`` (s,) of the composition, ``multiples`` (L,) int and
     ``coefficients`` (L,) of the extrapolation levels, ``lengths`` (L, s + 2) of each

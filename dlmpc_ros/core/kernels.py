@@ -194,19 +194,25 @@ def _gain_rate_fast(g_int: float, z: float, weight: np.ndarray, pump: float,
 
 
 @njit(inline='always', fastmath=_FAST)
-def _linear_step_fast(big_p, big_m, h, phase, cos_k, sin_k, mode_index, weight, table,
-                      norm, pump, sat_energy, tau_kappa2, loss) -> None:
-    """:func:`_linear_step` with the first RK4 stage from the energy itself (at G = 0 every
-    mode's factor is 1) and the others from :func:`_gain_rate_fast`: the same result to
-    rounding."""
-    weight[:] = 0.0
+def _linear_step_fast(big_p, big_m, h, phase, cos_k, sin_k, weight, table, norm, pump,
+                      sat_energy, tau_kappa2, loss) -> None:
+    """:func:`_linear_step` for modes in numpy ``fftfreq`` order (mode j and n - j share
+    the index |a|, no gathers), with the first RK4 stage from the energy itself (at G = 0
+    every mode's factor is 1) and the others from :func:`_gain_rate_fast`: the same
+    result to rounding."""
+    n = big_p.shape[0]
+    half = n // 2
+    for a in range(half + 1):
+        pj, mj = big_p[a], big_m[a]
+        weight[a] = norm * (pj.real * pj.real + pj.imag * pj.imag + mj.real * mj.real
+                            + mj.imag * mj.imag)
+    for a in range(1, n - half):
+        pj, mj = big_p[n - a], big_m[n - a]
+        weight[a] += norm * (pj.real * pj.real + pj.imag * pj.imag + mj.real * mj.real
+                             + mj.imag * mj.imag)
     energy = 0.0
-    for j in range(big_p.shape[0]):
-        pj, mj = big_p[j], big_m[j]
-        w = norm * (pj.real * pj.real + pj.imag * pj.imag + mj.real * mj.real
-                    + mj.imag * mj.imag)
-        weight[mode_index[j]] += w
-        energy += w
+    for a in range(half + 1):
+        energy += weight[a]
     k1 = 2.0 * pump / (1.0 + energy / sat_energy)
     k2 = _gain_rate_fast(0.5 * h * k1, 0.5 * h, weight, pump, sat_energy, tau_kappa2, loss)
     k3 = _gain_rate_fast(0.5 * h * k2, 0.5 * h, weight, pump, sat_energy, tau_kappa2, loss)
@@ -214,8 +220,15 @@ def _linear_step_fast(big_p, big_m, h, phase, cos_k, sin_k, mode_index, weight, 
     g_int = h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
     _square_exponent_table(math.exp(-tau_kappa2 * g_int), table)
     scale = math.exp(g_int)
-    for j in range(big_p.shape[0]):
-        f = phase[j] * (scale * table[mode_index[j]])
+    for a in range(half + 1):
+        table[a] *= scale
+    for j in range(half + 1):
+        f = phase[j] * table[j]
+        pj, mj = big_p[j], big_m[j]
+        big_p[j] = f * (cos_k * pj - 1j * sin_k * mj)
+        big_m[j] = f * (cos_k * mj - 1j * sin_k * pj)
+    for j in range(half + 1, n):
+        f = phase[j] * table[n - j]
         pj, mj = big_p[j], big_m[j]
         big_p[j] = f * (cos_k * pj - 1j * sin_k * mj)
         big_m[j] = f * (cos_k * mj - 1j * sin_k * pj)
@@ -425,8 +438,8 @@ def _one_laser_scheme(p, m, phi_prev, birefringence, transfer, round_trips, step
             count = multiples[level] * steps
             h = fiber_length / count
             _linear_step_fast(big_p, big_m, lengths[level, 0], phases[level, 0],
-                              cos_l[level, 0], sin_l[level, 0], mode_index, weight, table,
-                              norm, pump, sat_energy, tau_kappa2, loss)
+                              cos_l[level, 0], sin_l[level, 0], weight, table, norm, pump,
+                              sat_energy, tau_kappa2, loss)
             for step in range(count):
                 for sub in range(s):
                     lowlevel.c2c(big_p, p, axes, False, inv_n, 1)
@@ -436,8 +449,8 @@ def _one_laser_scheme(p, m, phi_prev, birefringence, transfer, round_trips, step
                     lowlevel.c2c(m, big_m, axes, True, 1.0, 1)
                     i = sub + 1 if sub < s - 1 else (s if step < count - 1 else s + 1)
                     _linear_step_fast(big_p, big_m, lengths[level, i], phases[level, i],
-                                      cos_l[level, i], sin_l[level, i], mode_index, weight,
-                                      table, norm, pump, sat_energy, tau_kappa2, loss)
+                                      cos_l[level, i], sin_l[level, i], weight, table, norm,
+                                      pump, sat_energy, tau_kappa2, loss)
             c = coefficients[level]
             if level == 0:
                 for j in range(n):

@@ -4,7 +4,8 @@ fastest settings' accuracy, batches, and the setting's validation."""
 import numpy as np
 import pytest
 
-from dlmpc_ros.core.cavity import Cavity
+from dlmpc_ros.core import kernels
+from dlmpc_ros.core.cavity import Cavity, scheme_tables
 from dlmpc_ros.core.config import CavityConfig, config_problems
 from dlmpc_ros.core.reference import reference_round_trips
 from dlmpc_ros.core.schemes import ORDER, SCHEMES
@@ -90,3 +91,25 @@ def test_the_scheme_is_validated_and_the_default_unchanged():
         assert config_problems({'scheme': bad})
     assert not config_problems({'scheme': 'suzuki4'})
     assert CavityConfig(scheme='richardson4').order == 4
+
+
+@pytest.mark.parametrize('points', [64, 33])
+def test_the_schemes_kernel_with_one_symmetric_step_equals_the_default_kernel(points):
+    """The fourth-order schemes' kernel (its own FFT calls, sin/cos and gain stages) run
+    with the weights of the symmetric step computes what the default's kernel does."""
+    config = CavityConfig(points=points, steps_per_round_trip=8)
+    rng = np.random.default_rng(5)
+    angles, ks = rng.uniform(-1.5, 1.5, (2, 4)), rng.uniform(-0.3, 0.3, 2)
+    default = Cavity(config, batch=2, angles=angles, birefringence=ks)
+    general = Cavity(config, batch=2, angles=angles, birefringence=ks)
+    tables = scheme_tables(config)  # 'strang' as a composition of one step
+    obs = np.empty((5, 2, kernels.N_OBSERVABLES))
+    grid = general.grid
+    kernels.run_scheme_serial(
+        general._p, general._m, general._phi_prev, general._birefringence, general._transfer,
+        5, config.steps_per_round_trip, *tables, config.fiber_length, config.cross_phase,
+        config.four_wave, config.pump, config.saturation_energy, config.gain_bandwidth,
+        config.loss, grid.k_grid, grid.mode_index, grid.dt, obs)
+    expected = default.run(5)
+    np.testing.assert_allclose(obs[..., 1], expected.E, rtol=1e-11)
+    np.testing.assert_allclose(obs[..., 2], expected.M, rtol=1e-10)
