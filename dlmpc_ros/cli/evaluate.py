@@ -80,6 +80,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         'ideal and slow servos and with 1 %% detector noise, seeds 1-3 and '
                         'every built-in controller by default (docs/evaluation.md); writes '
                         'OUT/stress.md and OUT/stress.json')
+    p.add_argument('--condition', action='append', default=[], metavar='NAME',
+                   help='with --suite: run only this condition, repeatable (e.g. '
+                        'sin6k-servo3; the names are listed in docs/evaluation.md)')
     p.add_argument('--scenario-param', action='append', default=[], metavar='KEY=VALUE',
                    help='scenario setting, repeatable; applies to every scenario that takes it')
     p.add_argument('--controller', action='append', metavar='NAME|MODULE:FACTORY',
@@ -159,8 +162,17 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                     f'runs fast drift runs; it takes no {", ".join(clash)}')
         args.fast = True
         args.conditions = SUITES[args.suite]()
+        unknown = [c for c in args.condition if c not in args.conditions]
+        if unknown:
+            p.error(f'--suite {args.suite} has no condition {", ".join(unknown)}; its '
+                    f'conditions: {", ".join(args.conditions)}')
+        if args.condition:
+            args.conditions = {k: c for k, c in args.conditions.items()
+                               if k in args.condition}
         args.seed = args.seed or list(SUITE_SEEDS[args.suite])
         args.controller = args.controller or list(SUITE_CONTROLLERS[args.suite])
+    elif args.condition:
+        p.error('--condition selects conditions of a --suite')
     if args.lock_k is not None and (args.benchmark != 'lock' or not -0.3 <= args.lock_k <= 0.3):
         p.error('--lock-k applies to --benchmark lock and must be in [-0.3, 0.3]')
     if args.workers < 1 or args.starts < 1 or args.budget < 1:
