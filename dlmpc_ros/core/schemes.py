@@ -5,8 +5,8 @@
   with weights summing to 1 (Yoshida 1990, Suzuki 1990); the linear half steps between
   sub-steps merge into one. A symmetric composition with these weights cancels the h^3
   local error of S and is fourth order. Some weights are negative (a step backwards in z,
-  unavoidable beyond second order), which limits the step: below about 10 (Yoshida) or
-  4 (Suzuki) steps per round trip the error jumps (measured, docs/solver.md).
+  unavoidable beyond second order), which limits the step: below 4 (Suzuki) or 14
+  (Yoshida) steps per round trip the error jumps on some states (docs/solver.md).
 - Extrapolation (``richardson4``): each round trip's fiber pass is run with
   ``m_i N`` symmetric steps from the same field, and the fields are combined with
   coefficients that cancel the h^2 term of the symmetric step's even error expansion

@@ -17,7 +17,7 @@ ROW = np.array(REFERENCE[0][0]), REFERENCE[0][1]
 ORDER_STEPS = {'strang': (8, 16), 'yoshida4': (12, 24), 'suzuki4': (8, 16),
                'richardson4': (8, 16)}
 #: The fewest steps of each fourth-order scheme that keep E and M within 1e-3 of DOP853
-#: (docs/solver.md); the default scheme needs 24.
+#: (docs/solver.md); the default scheme needs 30.
 FEWEST = {'suzuki4': 4, 'richardson4': 6}
 
 
