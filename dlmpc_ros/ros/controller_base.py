@@ -191,6 +191,8 @@ class ControllerNodeBase(Node):
         measurement = self._periods.add(round_trip, itf.measured_state(msg.data))
         if measurement is None:
             return None
+        if self._pending is not None:  # a new run (the laser restarted) before the answer
+            self._act(None, why="before the next period's state")
         self._pending_since = self.get_clock().now().nanoseconds * 1e-9
         self._pending = np.array(msg.data, float)
         self._pending_measurement = measurement
