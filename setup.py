@@ -29,7 +29,9 @@ setup(
         'dask>=2024.1',
         'distributed>=2024.1',
     ],
-    extras_require={'ml': ['torch>=2.2,<3', 'tqdm>=4.60']},
+    extras_require={'ml': ['torch>=2.2,<3', 'tqdm>=4.60'],
+                    # dlmpc_ros.gym only (docs/gym.md); the nodes never import it
+                    'gym': ['gymnasium>=1.0,<2']},
     zip_safe=True,
     maintainer='dlmpc_ros developers',
     maintainer_email='dlmpc-ros@example.org',
