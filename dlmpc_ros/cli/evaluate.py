@@ -49,7 +49,8 @@ import numpy as np
 from dlmpc_ros.control.factory import CONTROLLERS
 from dlmpc_ros.control.plugins import ControllerSpecError, build, label
 from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
+from dlmpc_ros.control.period_measurement import (MEASUREMENT_ROUND_TRIPS, SETTLE_TIMEOUT,
+                                                  SETTLE_TOLERANCE)
 from dlmpc_ros.core.bench import BENCH_FIELDS, BENCH_PRESETS, BenchConfig, parse_bench
 from dlmpc_ros.core.drift import DEFAULTS, parse_settings
 from dlmpc_ros.evaluation.figures import plot_surrogate, plot_tracking
@@ -107,6 +108,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help='emulate the lab bench (servos, encoders, detectors), repeatable: a '
                         f'preset ({", ".join(BENCH_PRESETS)}) or a setting '
                         f'({", ".join(BENCH_FIELDS)}); docs/nodes.md')
+    p.add_argument('--settle-tolerance', type=float, default=SETTLE_TOLERANCE, metavar='RAD',
+                   help='fast runs: a state counts for a decision once its reported angles '
+                        'are this close to the command (default: %(default)s)')
+    p.add_argument('--settle-timeout', type=int, default=SETTLE_TIMEOUT, metavar='N',
+                   help='fast runs: round trips after a decision by which the next is made '
+                        'even if the servos have not settled (default: %(default)s)')
     p.add_argument('--fast', action='store_true',
                    help='run the core objects in one process instead of the node graph')
     p.add_argument('--free-run', action='store_true',
@@ -189,6 +196,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         p.error('--measurement-noise must be in [0, 1)')
     if args.measurement_round_trips < 1:
         p.error('--measurement-round-trips must be >= 1')
+    if not (args.settle_tolerance >= 0 and args.settle_timeout >= 1):
+        p.error('--settle-tolerance must be >= 0 and --settle-timeout >= 1')
+    args.settle = {'settle_tolerance': args.settle_tolerance,
+                   'settle_timeout': args.settle_timeout}
     try:
         bench = parse_bench(args.bench)
     except ValueError as err:
@@ -231,12 +242,13 @@ def run_specs(args: argparse.Namespace, plant: dict | None = None) -> list[RunSp
         return [RunSpec(c.scenario, seed, controller, dict(c.settings), args.round_trips,
                         args.period, args.max_step, 0.0, mode, dict(plant or {}),
                         measurement_round_trips=args.measurement_round_trips,
-                        bench=dict(c.bench), condition=c.name)
+                        bench=dict(c.bench), condition=c.name, **args.settle)
                 for c, seed, controller in itertools.product(args.conditions.values(),
                                                              args.seed, args.controller)]
     return [RunSpec(scenario, seed, controller, args.settings[scenario], args.round_trips,
                     args.period, args.max_step, args.measurement_noise, mode, dict(plant or {}),
-                    measurement_round_trips=args.measurement_round_trips, bench=args.bench)
+                    measurement_round_trips=args.measurement_round_trips, bench=args.bench,
+                    **args.settle)
             for scenario, seed, controller in itertools.product(args.scenario, args.seed,
                                                                 args.controller)]
 

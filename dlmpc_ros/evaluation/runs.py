@@ -10,7 +10,8 @@ from pathlib import Path
 from dlmpc_ros.control.estimator import SurrogateEstimator
 from dlmpc_ros.control.factory import load_estimator, make_controller
 from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
+from dlmpc_ros.control.period_measurement import (MEASUREMENT_ROUND_TRIPS, SETTLE_TIMEOUT,
+                                                  SETTLE_TOLERANCE)
 from dlmpc_ros.control.step import Controller
 from dlmpc_ros.core import checks
 from dlmpc_ros.core.bench import BenchConfig
@@ -59,6 +60,10 @@ class RunSpec:
     """The lab bench's settings that differ from an ideal one (servos, encoders,
     detectors: :class:`~dlmpc_ros.core.bench.BenchConfig`); fast runs emulate them, graph
     runs pass them to laser_sim."""
+    settle_tolerance: float = SETTLE_TOLERANCE
+    """A state counts for a decision once its angles are this close to the command [rad]."""
+    settle_timeout: int = SETTLE_TIMEOUT
+    """Round trips after a decision by which the next is made even if unsettled."""
     condition: str = ''
     """Label of the suite condition the run belongs to
     (:mod:`~dlmpc_ros.evaluation.suites`; empty outside a suite): it names the run's
@@ -70,7 +75,9 @@ class RunSpec:
                              f'got {self.scenario!r}')
         if self.mode not in MODES:
             raise ValueError(f'RunSpec.mode must be one of {MODES}, got {self.mode!r}')
-        checks.counts(self, 'round_trips', 'period', 'measurement_round_trips')
+        checks.counts(self, 'round_trips', 'period', 'measurement_round_trips',
+                      'settle_timeout')
+        checks.non_negative(self, 'settle_tolerance')
         checks.positive(self, 'max_step')
         checks.non_negative(self, 'measurement_noise')
         unknown = set(self.plant) - set(PHYSICS_FIELDS)
@@ -106,6 +113,10 @@ class RunSpec:
                 'measurement_noise': self.measurement_noise,
                 'measurement_round_trips': self.measurement_round_trips,
                 **({'bench': dict(self.bench)} if self.bench else {}),
+                **({'settle_tolerance': self.settle_tolerance}
+                   if self.settle_tolerance != SETTLE_TOLERANCE else {}),
+                **({'settle_timeout': self.settle_timeout}
+                   if self.settle_timeout != SETTLE_TIMEOUT else {}),
                 **({'condition': self.condition} if self.condition else {}),
                 'plant': plant_parameters(self.cavity),
                 'plant_fingerprint': plant_fingerprint(self.cavity)}
@@ -129,7 +140,8 @@ def run_fast(spec: RunSpec, models_dir: Path, controller: Controller | None = No
                            estimator=estimator, meta=spec.meta(models_dir), progress=progress,
                            measurement_noise=spec.measurement_noise, noise_seed=spec.seed,
                            measurement_round_trips=spec.measurement_round_trips,
-                           bench=spec.bench_config)
+                           bench=spec.bench_config, settle_tolerance=spec.settle_tolerance,
+                           settle_timeout=spec.settle_timeout)
 
 
 def run_spec(spec: RunSpec, models_dir: Path, run_dir: Path, domain_id: int = 88,
