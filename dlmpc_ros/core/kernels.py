@@ -19,6 +19,12 @@ One fiber pass is a symmetric (Strang) split step in the circular polarization b
 on the integer mode index ``a``, and ``exp(i theta)`` by a vectorizable polynomial; both
 save most of the time that libm calls would take.
 
+The other schemes of :mod:`dlmpc_ros.core.schemes` (compositions of this step and its
+Richardson extrapolation) run in :func:`run_scheme_serial` / :func:`run_scheme_parallel`,
+built from faster pieces that round differently (in-place FFTs, a branch-free sin/cos, a
+linear step without gathers); the default keeps its own kernel, so that its numbers stay
+bit for bit those the shipped models were trained on.
+
 Observables, per laser and round trip, are written in the order of :data:`OBSERVABLES`.
 """
 
@@ -87,7 +93,8 @@ def cos_sin_vectorizable(theta: float) -> tuple[float, float]:
 
 @njit(inline='always', fastmath=_FAST)
 def _square_exponent_table(q: float, out: np.ndarray) -> None:
-    """out[a] = q ** (a * a) for a = 0 .. len(out) - 1 (0 < q <= 1)."""
+    """out[a] = q ** (a * a) for a = 0 .. len(out) - 1 (q > 0; above 1 for a step
+    backwards in z, in the compositions of :mod:`dlmpc_ros.core.schemes`)."""
     r = 1.0
     f = q
     q2 = q * q
