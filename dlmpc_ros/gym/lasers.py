@@ -21,7 +21,7 @@ as the simulator node does; a period with no finite round trip measures E = 0, M
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -29,7 +29,7 @@ from dlmpc_ros.core.cavity import Cavity, initial_field
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.grid import Grid
 from dlmpc_ros.core.plants import plant_parameters
-from dlmpc_ros.gym.config import LaserEnvConfig, checked_envelope
+from dlmpc_ros.gym.config import SOLVER_FIELDS, LaserEnvConfig, checked_envelope
 
 #: Columns of a measurement: E, M and the four angles [rad].
 MEASUREMENT = ('E', 'M', 'alpha1', 'alpha2', 'alpha3', 'alpha_p')
@@ -116,6 +116,9 @@ class LaserBatch:
                 if not isinstance(cavity_cfg, CavityConfig):
                     raise ValueError('ModeLockedLaser plant_source must return '
                                      f'(CavityConfig, envelope), got {cavity_cfg!r}')
+                # the plant's physics on the env's grid and solver
+                cavity_cfg = replace(cavity_cfg, **{name: getattr(self.base, name)
+                                                    for name in SOLVER_FIELDS})
                 self._envelopes[lane] = None if envelope is None else checked_envelope(envelope)
             else:
                 cavity_cfg = cfg.family.draw(plant_seed, 0, base=self.base)

@@ -12,8 +12,11 @@ the step after a sub-environment's episode ended resets it (its action is ignore
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
+import numba
 import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import seeding
@@ -25,12 +28,20 @@ from dlmpc_ros.gym.lasers import LaserBatch
 
 
 class ModeLockedLaserVectorEnv(VectorEnv):
-    """B lasers. Keyword arguments: ``num_envs`` and the fields of
+    """B lasers. Keyword arguments: ``num_envs``, ``threads`` (numba threads of the
+    batched kernel during this env's calls; None: numba's setting, every core; on a
+    loaded machine 1 can be faster, ``bench/results/bench_gym.md``) and the fields of
     :class:`~dlmpc_ros.gym.config.LaserEnvConfig`."""
 
     metadata: dict[str, Any] = {'render_modes': [], 'autoreset_mode': AutoresetMode.NEXT_STEP}
 
-    def __init__(self, num_envs: int = 1, **options: Any) -> None:
+    def __init__(self, num_envs: int = 1, threads: int | None = None, **options: Any) -> None:
+        cores = numba.config.NUMBA_NUM_THREADS
+        if threads is not None and (isinstance(threads, bool) or not isinstance(
+                threads, (int, np.integer)) or not 1 <= threads <= cores):
+            raise ValueError(f'ModeLockedLaser option threads must be None or an integer in '
+                             f'[1, {cores}], got {threads!r}')
+        self.threads = threads
         self.config = make_config(options)
         self._lasers = LaserBatch(self.config, num_envs)
         self.num_envs = self._lasers.batch
@@ -68,7 +79,8 @@ class ModeLockedLaserVectorEnv(VectorEnv):
             self._lasers.begin(int(i), self._rngs[i])
         # every lane runs the period (the lanes not reset hold their angles; their
         # episodes go on by a period, as any batched step would move them)
-        result = self._lasers.period(None)
+        with self._kernel_threads():
+            result = self._lasers.period(None)
         self._steps[mask] = 0
         self._done[mask] = False
         self._started = True
@@ -83,13 +95,28 @@ class ModeLockedLaserVectorEnv(VectorEnv):
         restart = self._done.copy()
         for i in np.flatnonzero(restart):
             self._lasers.begin(int(i), self._rngs[i])
-        result = self._lasers.period(actions, move=~restart)
+        with self._kernel_threads():
+            result = self._lasers.period(actions, move=~restart)
         self._steps = np.where(restart, 0, self._steps + 1)
         truncated = ~restart & (self._steps >= self.config.episode_periods)
         self._done = truncated.copy()
         reward = np.where(restart, 0.0, result.reward)
         return (self._lasers.observation(), reward, np.zeros(B, bool), truncated,
                 vector_info(result.info))
+
+    @contextmanager
+    def _kernel_threads(self) -> Iterator[None]:
+        """numba's threads set to ``threads`` for the block (numba's setting is per
+        calling thread), restored after."""
+        if self.threads is None:
+            yield
+            return
+        before = numba.get_num_threads()
+        numba.set_num_threads(int(self.threads))
+        try:
+            yield
+        finally:
+            numba.set_num_threads(before)
 
 
 def vector_info(info: dict[str, np.ndarray]) -> dict[str, Any]:

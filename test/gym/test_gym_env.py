@@ -182,3 +182,5 @@ def test_bad_calls_stop_with_one_clear_line():
     vector = gymnasium.make_vec(ENV, num_envs=2, solver=SMALL)
     with pytest.raises(ValueError, match='needs 2 seeds'):
         vector.reset(seed=[1, 2, 3])
+    with pytest.raises(ValueError, match='option threads must be None or an integer'):
+        gymnasium.make_vec(ENV, num_envs=2, solver=SMALL, threads=0)
