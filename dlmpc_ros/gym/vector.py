@@ -7,7 +7,9 @@ reset with seed ``seed + i`` (a list of seeds: its own): same observations, rewa
 info. Autoreset follows Gymnasium 1.x's next-step rule (``metadata['autoreset_mode']``):
 the step after a sub-environment's episode ended resets it (its action is ignored; reward
 0, not terminated or truncated) and returns its first observation. ``reset(options=
-{'reset_mask': mask})`` resets only the lanes in ``mask``.
+{'reset_mask': mask})`` resets only the lanes in ``mask``; the others hold their angles
+for the period that the reset lanes' first measurement takes (their episodes go on by a
+period, with no reward returned for it).
 """
 
 from __future__ import annotations
