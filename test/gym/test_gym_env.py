@@ -184,3 +184,37 @@ def test_bad_calls_stop_with_one_clear_line():
         vector.reset(seed=[1, 2, 3])
     with pytest.raises(ValueError, match='option threads must be None or an integer'):
         gymnasium.make_vec(ENV, num_envs=2, solver=SMALL, threads=0)
+
+
+def test_the_env_is_the_evaluation_closed_loop_period_for_period():
+    """The same angles on the same laser and drift give dlmpc-evaluate's closed loop's
+    measurements, bit for bit (ideal bench, no noise)."""
+    from dlmpc_ros.control.step import ControlStep
+    from dlmpc_ros.core.drift import make_scenario
+    from dlmpc_ros.evaluation.closed_loop import run_closed_loop
+
+    start = np.array([0.3, -0.2, 0.5, 0.1])
+    deltas = np.random.default_rng(3).uniform(-0.25, 0.25, (4, 4))
+    settings = {'amplitude': 0.25, 'period': 300.0}
+
+    class Scripted:
+        name = 'scripted'
+
+        def __init__(self):
+            self.measurements, self.angles = [], start.copy()
+
+        def step(self, measurement, surrogate=None):
+            self.measurements.append(measurement)
+            if len(self.measurements) <= len(deltas):
+                self.angles = self.angles + deltas[len(self.measurements) - 1]
+            return ControlStep(angles=self.angles.copy(), mode='custom')
+
+    controller = Scripted()
+    run_closed_loop(controller, make_scenario('sinusoidal', **settings), 50, 10, start,
+                    cavity_config=CavityConfig(**SMALL), initial='sech')
+    env = make(scenario='sinusoidal', scenario_settings=settings, initial='sech',
+               initial_angles=list(start))
+    obs, _ = env.reset(seed=0)
+    observations = [obs] + [env.step(d)[0] for d in deltas]
+    np.testing.assert_array_equal(np.array(observations),
+                                  np.array(controller.measurements, np.float32))
