@@ -107,7 +107,7 @@ def over_envelope_warning(run: dict) -> str:
     """One line for a run of :func:`over_envelope`."""
     return (f"warning: {run['plant']} {run['condition']} seed {run['seed']} "
             f"{run['controller']}: oracle ratio {run['oracle_ratio']:.3f} > "
-            f"{ENVELOPE_BOUND:g}: the envelope search missed this plant's optimum")
+            f"{ENVELOPE_BOUND:.1f}: the envelope search missed this plant's optimum")
 
 
 def suite_cells(runs: list[dict]) -> list[dict]:
@@ -160,14 +160,14 @@ def suite_markdown(name: str, cells: list[dict], over: list[dict], heading: str)
             return f'{np.mean(values):.3f}' if values else '-'
         table([('all', c) for c in dict.fromkeys(c['condition'] for c in cells)], mean)
     if over:
-        lines += [f'Runs above {ENVELOPE_BOUND:g} of their plant\'s envelope (the envelope '
+        lines += [f'Runs above {ENVELOPE_BOUND:.1f} of their plant\'s envelope (the envelope '
                   'search missed this plant\'s optimum; every ratio on it is inflated):', '',
                   '| plant | condition | seed | controller | oracle ratio |',
                   '|---|---|---|---|---|']
         lines += [f"| {r['plant']} | {r['condition']} | {r['seed']} | {r['controller']} | "
                   f"{r['oracle_ratio']:.3f} |" for r in over]
     else:
-        lines.append(f'No run exceeds {ENVELOPE_BOUND:g} of its plant\'s envelope.')
+        lines.append(f'No run exceeds {ENVELOPE_BOUND:.1f} of its plant\'s envelope.')
     return '\n'.join(lines) + '\n'
 
 
@@ -177,8 +177,10 @@ def write_suite(out: Path, name: str, conditions: dict[str, Condition], runs: li
     envelope. ``settings``: what else the suite ran with (round trips, seeds, ...)."""
     cells = suite_cells(runs)
     over = over_envelope(runs)
-    heading = (f"oracle_ratio (mean O / mean O*(K), each plant's own envelope), mean over "
-               f"seeds {', '.join(str(s) for s in settings.get('seeds', []))} (min-max), "
+    seeds = list(settings.get('seeds', []))
+    over_seeds = (f"seed {seeds[0]}" if len(seeds) == 1 else
+                  f"mean over seeds {', '.join(str(s) for s in seeds)} (min-max)")
+    heading = (f"oracle_ratio (mean O / mean O*(K), each plant's own envelope), {over_seeds}, "
                f"{settings.get('round_trips')} round trips per run, fast mode.")
     listing = '\n'.join(f'- {c.name}: {c.scenario} {json.dumps(c.settings)}, '
                         + (f'bench {json.dumps(c.bench)}' if c.bench else 'ideal bench')
