@@ -1,0 +1,82 @@
+"""The bench issue's table: DL-MPC with the emulated lab bench against its ideal-servo
+runs, and against the baselines on the same bench (mean oracle ratio over seeds, per
+plant and drift).
+
+    dlmpc-evaluate --fast --round-trips 20000 --nominal --plant-family 101 ... \\
+        --plant-family 108 --scenario sinusoidal --scenario random_walk \\
+        --seed 1 --seed 2 --seed 3 --controller dlmpc --bench lab --workers 2 --out LAB
+    (the same with --controller passive --controller fixed_best, and esc ga on seed 1)
+    python bench/lab_bench.py --ideal docs/results/heldout/dlmpc-drift \\
+        docs/results/nominal-dlmpc --lab LAB --baselines LAB_BASELINES LAB_SEARCHERS
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+PLANTS = ['nominal'] + [f'family-{p}' for p in range(101, 109)]
+DRIFTS = ('sinusoidal', 'random_walk')
+BASELINES = ('passive', 'fixed_best', 'esc', 'ga')
+
+
+def ratios(folders: list[Path]) -> dict[tuple[str, str, int, str], float]:
+    """(plant, scenario, seed, controller) -> oracle ratio of every run in ``folders``."""
+    out = {}
+    for folder in folders:
+        for plant in PLANTS:
+            path = folder / plant / 'metrics.json'
+            if path.exists():
+                for run in json.loads(path.read_text())['runs']:
+                    key = (plant, run['scenario'], run['seed'], run['controller'])
+                    out[key] = run['metrics']['oracle_ratio']
+    return out
+
+
+def mean_over_seeds(runs: dict, plant: str, drift: str, controller: str) -> float | None:
+    values = [v for (p, d, _, c), v in runs.items()
+              if (p, d, c) == (plant, drift, controller)]
+    return float(np.mean(values)) if values else None
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    p.add_argument('--ideal', type=Path, nargs='+', required=True)
+    p.add_argument('--lab', type=Path, nargs='+', required=True)
+    p.add_argument('--baselines', type=Path, nargs='*', default=[])
+    args = p.parse_args()
+    ideal, lab, base = ratios(args.ideal), ratios(args.lab), ratios(args.baselines)
+    print('| plant | drift | DL-MPC ideal | DL-MPC lab | lab - ideal | best baseline on the '
+          'lab bench |')
+    print('|---|---|---|---|---|---|')
+    changes, margins = [], []
+    for plant in PLANTS:
+        for drift in DRIFTS:
+            before = mean_over_seeds(ideal, plant, drift, 'dlmpc')
+            after = mean_over_seeds(lab, plant, drift, 'dlmpc')
+            if before is None or after is None:
+                continue
+            changes.append(after - before)
+            scored = {c: mean_over_seeds(base, plant, drift, c) for c in BASELINES}
+            scored = {c: v for c, v in scored.items() if v is not None}
+            best = max(scored, key=scored.get) if scored else None
+            if best is not None:
+                margins.append(after - scored[best])
+            shown = f'{scored[best]:.3f} ({best})' if best else '-'
+            print(f'| {plant} | {drift} | {before:.3f} | {after:.3f} | {after - before:+.3f} '
+                  f'| {shown} |')
+    held = [k for k in lab if k[0] != 'nominal' and k[3] == 'dlmpc' and k in ideal]
+    print(f'\nlab - ideal: mean {np.mean(changes):+.4f}, worst {min(changes):+.4f} '
+          f'({len(changes)} plant x drift cells); held-out 101-108: lab '
+          f'{np.mean([lab[k] for k in held]):.4f}, ideal {np.mean([ideal[k] for k in held]):.4f}')
+    if margins:
+        print(f'DL-MPC on the lab bench above the best baseline on it in '
+              f'{sum(m > 0 for m in margins)} of {len(margins)} cells (closest '
+              f'{min(margins):+.4f})')
+
+
+if __name__ == '__main__':
+    main()
