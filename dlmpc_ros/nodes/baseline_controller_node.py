@@ -7,8 +7,9 @@ searches, then holds its best), ``passive`` (the angles best for the initial K, 
 (evaluation only: subscribes ``/laser/sim_truth`` for the true K, which no other
 controller reads), or any other registered name or ``package.module:factory``
 (docs/controllers.md; without the estimator's surrogate). Publishes
-``/laser/angles_cmd`` and ``/controller/status`` once per control period of
-``/laser/state``.
+``/controller/measurement``, ``/laser/angles_cmd`` and ``/controller/status`` once per
+decision on ``/laser/state`` (at least a period apart, once the laser reports its last
+command reached).
 """
 
 from __future__ import annotations

@@ -2,8 +2,10 @@
 a lock acquisition scan while the laser is off its pulse, curve tracking once locked, and
 turns of the curve planned with the steady-response predictor).
 
-Subscribes ``/laser/state`` and ``/estimator/birefringence``; once per control period
-publishes ``/laser/angles_cmd`` and ``/controller/status``. It never reads the true K:
+Subscribes ``/laser/state`` and ``/estimator/birefringence``; once per decision (at least a
+period apart, once the laser reports its last command reached: ``ros/controller_base.py``)
+publishes ``/controller/measurement``, ``/laser/angles_cmd`` and ``/controller/status``.
+It never reads the true K:
 it has no subscription to ``/laser/birefringence`` or ``/laser/sim_truth``, and none of
 the files it loads (``kmap.pt``, ``mprnn.pt``, ``track_curve.npz``, ``response.pt``,
 ``rotation_prior.npz``, ``turn_correction.npz``) holds the K of a run.

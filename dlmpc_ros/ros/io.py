@@ -16,7 +16,7 @@ topic                         history             promise
 /laser/angles_cmd             keep last 10000     every command reaches the laser (applied in
                                                   order; the newest at each round trip wins)
 /laser/birefringence          keep last 10000     every K reaches the simulator (likewise)
-/estimator/birefringence      keep last 10000     one per control period, none missed
+/estimator/birefringence      keep last 10000     one per decision, none missed
 /controller/status            keep last 10000     same
 /controller/measurement       keep last 10000     one per decision, none missed
 /laser/status                 keep last 10        once a second; only the newest matters
