@@ -51,7 +51,7 @@ from dlmpc_ros.control.plugins import ControllerSpecError, build, label
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.period_measurement import (MEASUREMENT_ROUND_TRIPS, SETTLE_TIMEOUT,
                                                   SETTLE_TOLERANCE)
-from dlmpc_ros.core.bench import BENCH_FIELDS, BENCH_PRESETS, BenchConfig, parse_bench
+from dlmpc_ros.core.bench import BENCH_FIELDS, BENCH_PRESETS, parse_bench
 from dlmpc_ros.core.drift import DEFAULTS, parse_settings
 from dlmpc_ros.evaluation.figures import plot_surrogate, plot_tracking
 from dlmpc_ros.evaluation.presets import SCENARIOS, preset_settings
@@ -204,8 +204,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         bench = parse_bench(args.bench)
     except ValueError as err:
         p.error(str(err))
-    ideal = BenchConfig().to_dict()
-    args.bench = {k: v for k, v in bench.to_dict().items() if v != ideal[k]}
+    args.bench = bench.changes()
     if args.measurement_noise and 'detector_noise' in args.bench:
         p.error('give the detector noise once: --measurement-noise or --bench '
                 'detector_noise=...')

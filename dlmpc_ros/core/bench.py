@@ -8,8 +8,10 @@ fast closed loop behave as before unless a setting asks otherwise. Units: angles
 times in round trips, E and M in the model's units (``E = sqrt(energy)``).
 
 Per round trip, :class:`Bench` gives the angles the cavity runs with
-(:meth:`Bench.advance`) and turns the laser's true E, M and peak into what the detectors
-report, and the true angles into what the encoders report (:meth:`Bench.read`).
+(:meth:`Bench.advance`, through its :class:`Servos`, which also move the mounts of B
+lasers at once) and turns the laser's true E, M and peak into what the detectors report
+(:meth:`Bench.read_detectors`), and the drive's angles into what the encoders report
+(:meth:`Bench.read_angles`).
 """
 
 from __future__ import annotations
@@ -84,6 +86,11 @@ class BenchConfig:
     def to_dict(self) -> dict[str, float]:
         return asdict(self)
 
+    def changes(self) -> dict[str, float]:
+        """The settings that differ from an ideal bench."""
+        ideal = asdict(BenchConfig())
+        return {k: v for k, v in asdict(self).items() if v != ideal[k]}
+
     def full_step_round_trips(self, step: float) -> int:
         """Round trips from a command to reaching a move of ``step`` rad (lag and slew)."""
         moving = 1 if self.slew_rate == 0 else math.ceil(step / self.slew_rate - 1e-12)
@@ -92,6 +99,57 @@ class BenchConfig:
 
 #: Fields of :class:`BenchConfig`, in order (the laser_sim node's parameter names).
 BENCH_FIELDS = tuple(f.name for f in fields(BenchConfig))
+
+
+class Servos:
+    """The mounts of one laser (angles (4,)) or of B lasers (angles (B, 4)) [rad]: where
+    each drive and optic is, the latest command, and the round trips until each drive
+    moves (``servo_lag``, ``slew_rate`` and ``backlash`` of ``config``)."""
+
+    def __init__(self, config: BenchConfig, angles: np.ndarray) -> None:
+        self.config = config
+        self.drive = np.array(angles, float)       # (..., 4) the drive's (motor's) angles
+        self.optic = self.drive.copy()              # (..., 4) what the light sees
+        self.target = self.drive.copy()             # (..., 4) the latest command
+        self.wait = np.zeros(self.drive.shape[:-1], np.int64)  # round trips to the start
+
+    def command(self, angles: np.ndarray) -> None:
+        """New commands (..., 4) [rad]; a drive whose command changed starts after
+        ``servo_lag`` round trips (a resent command does not restart the lag)."""
+        angles = np.array(angles, float)
+        changed = (angles != self.target).any(axis=-1)
+        self.wait = np.where(changed, self.config.servo_lag, self.wait)
+        self.target = angles
+
+    def place(self, angles: np.ndarray, index: int | np.ndarray) -> None:
+        """Put the mounts in ``index`` at ``angles`` at once, at rest (a new episode)."""
+        self.drive[index] = self.optic[index] = self.target[index] = angles
+        self.wait[index] = 0
+
+    def advance(self) -> np.ndarray:
+        """Move the servos by one round trip; the optic's angles (..., 4) [rad] this round
+        trip runs with."""
+        c = self.config
+        waiting = self.wait > 0
+        self.wait = np.where(waiting, self.wait - 1, self.wait)
+        gap = self.target - self.drive
+        if c.slew_rate > 0:  # the last stretch lands on the target exactly
+            moved = np.where(np.abs(gap) <= c.slew_rate, self.target,
+                             self.drive + np.clip(gap, -c.slew_rate, c.slew_rate))
+        else:
+            moved = self.target
+        self.drive = np.where(waiting[..., None], self.drive, moved)
+        if c.backlash > 0:  # the optic follows once the drive has taken up the play
+            half = c.backlash / 2
+            self.optic = np.clip(self.optic, self.drive - half, self.drive + half)
+        else:
+            self.optic = self.drive.copy()
+        return self.optic.copy()
+
+    @property
+    def settled(self) -> np.ndarray:
+        """Whether each drive is at its latest command (a bool of the batch's shape)."""
+        return (self.wait == 0) & (self.drive == self.target).all(axis=-1)
 
 
 class Bench:
@@ -110,56 +168,31 @@ class Bench:
 
     def __init__(self, config: BenchConfig, angles: np.ndarray, seed: int = 0) -> None:
         self.config = config
-        self.drive = np.array(angles, float)       # (4,) the drive's (motor's) angles
-        self.optic = self.drive.copy()              # (4,) what the light sees
-        self.target = self.drive.copy()             # (4,) the latest command
-        self._start = 0                             # round trips until the drive moves
+        self.servos = Servos(config, angles)
         self._detector_rng = np.random.default_rng(seed)
         self._encoder_rng = np.random.default_rng([seed, 1])
         self._last_m = math.nan
 
     def command(self, angles: np.ndarray) -> None:
-        """A new command (4,) [rad]; the drive starts after ``servo_lag`` round trips. A
-        command equal to the current target changes nothing (a resent command does not
-        restart the lag)."""
-        angles = np.asarray(angles, float)
-        if np.array_equal(angles, self.target):
-            return
-        self.target = angles.copy()
-        self._start = self.config.servo_lag
+        """A new command (4,) [rad] (:meth:`Servos.command`)."""
+        self.servos.command(angles)
 
     def advance(self) -> np.ndarray:
-        """Move the servos by one round trip; the optic's angles (4,) [rad] this round
-        trip runs with."""
-        c = self.config
-        if self._start > 0:
-            self._start -= 1
-        else:
-            gap = self.target - self.drive
-            if c.slew_rate > 0:  # the last stretch lands on the target exactly
-                self.drive = np.where(np.abs(gap) <= c.slew_rate, self.target,
-                                      self.drive + np.clip(gap, -c.slew_rate, c.slew_rate))
-            else:
-                self.drive = self.target.copy()
-        if c.backlash > 0:  # the optic follows once the drive has taken up the play
-            half = c.backlash / 2
-            self.optic = np.clip(self.optic, self.drive - half, self.drive + half)
-        else:
-            self.optic = self.drive.copy()
-        return self.optic.copy()
+        """Move the servos by one round trip; the optic's angles (4,) [rad]."""
+        return self.servos.advance()
 
     @property
     def settled(self) -> bool:
         """Whether the drive is at the latest command."""
-        return self._start == 0 and bool(np.array_equal(self.drive, self.target))
+        return bool(self.servos.settled)
 
     def read_angles(self) -> np.ndarray:
         """What the encoders report (4,) [rad]: the drive's angles with noise, quantized."""
         c = self.config
-        angles = self.drive.copy()
+        angles = self.servos.drive.copy()
         if c.encoder_noise > 0:
             angles += c.encoder_noise * self._encoder_rng.standard_normal(4)
-        return _quantize(angles, c.encoder_resolution)
+        return quantize(angles, c.encoder_resolution)
 
     def read_detectors(self, round_trip: int, e: float, m: float,
                        peak: float) -> tuple[float, float, float]:
@@ -175,8 +208,8 @@ class Bench:
             m_read = m * (1.0 + c.detector_noise * m_noise)
         if c.detector_saturation > 0:
             e_read = min(e_read, c.detector_saturation)
-        e_read = float(_quantize(np.array(e_read), c.detector_resolution))
-        m_read = float(_quantize(np.array(m_read), c.detector_resolution))
+        e_read = float(quantize(np.array(e_read), c.detector_resolution))
+        m_read = float(quantize(np.array(m_read), c.detector_resolution))
         if c.spectrum_refresh > 1:
             if (round_trip - 1) % c.spectrum_refresh or not math.isfinite(m_read):
                 m_read = self._last_m if math.isfinite(self._last_m) else m_read
@@ -186,7 +219,8 @@ class Bench:
         return e_read, m_read, peak_read
 
 
-def _quantize(values: np.ndarray, step: float) -> np.ndarray:
+def quantize(values: np.ndarray, step: float) -> np.ndarray:
+    """``values`` rounded to whole multiples of ``step`` (unchanged for step 0)."""
     return values if step <= 0 else np.round(values / step) * step
 
 

@@ -50,9 +50,8 @@ class Condition:
             raise ValueError(f'Condition.scenario must be one of {tuple(PRESETS)}, '
                              f'got {self.scenario!r}')
         object.__setattr__(self, 'settings', preset_settings(self.scenario, self.settings))
-        ideal = BenchConfig().to_dict()
-        bench = BenchConfig(**self.bench).to_dict()  # raises on a bad setting
-        object.__setattr__(self, 'bench', {k: v for k, v in bench.items() if v != ideal[k]})
+        # raises on a bad setting
+        object.__setattr__(self, 'bench', BenchConfig(**self.bench).changes())
 
     def to_dict(self) -> dict:
         return {'scenario': self.scenario, 'settings': dict(self.settings),

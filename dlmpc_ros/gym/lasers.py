@@ -25,6 +25,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from dlmpc_ros.core.bench import Servos, quantize
 from dlmpc_ros.core.cavity import Cavity, initial_field
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.grid import Grid
@@ -60,10 +61,6 @@ INFO_KEYS = ('K', 'O_star', 'O_true', 'round_trip', 'settled', 'blown_up', 'fami
              'plant')
 
 
-def _quantize(values: np.ndarray, step: float) -> np.ndarray:
-    return values if step <= 0 else np.round(values / step) * step
-
-
 class LaserBatch:
     """B lasers with their own episodes, stepped one period per call."""
 
@@ -82,10 +79,7 @@ class LaserBatch:
         self._groups: list[tuple[Cavity | None, np.ndarray]] = (
             [(None, np.array([i])) for i in range(B)] if self.family
             else [(fixed, np.arange(B))])
-        self.command = np.zeros((B, 4))
-        self.drive = np.zeros((B, 4))
-        self.optic = np.zeros((B, 4))
-        self.lag = np.zeros(B, np.int64)
+        self.servos = Servos(self.bench, np.zeros((B, 4)))  # every lane's mounts
         self.round_trip = np.zeros(B, np.int64)
         self.last_m = np.full(B, np.nan)
         self.window = np.zeros((B, config.window, 6))
@@ -135,8 +129,7 @@ class LaserBatch:
         cavity.set_angles(angles, index)
         u, v = initial_field(self.grid, cfg.initial, 1, self._field_rngs[lane])
         cavity.set_fields(u, v, index)
-        self.command[lane] = self.drive[lane] = self.optic[lane] = angles
-        self.lag[lane] = 0
+        self.servos.place(angles, lane)
         self.round_trip[lane] = 0
         self.last_m[lane] = np.nan
         self._fresh[lane] = True
@@ -156,8 +149,8 @@ class LaserBatch:
         actions = np.asarray(actions, float)
         if self.config.action == 'delta':
             step = np.clip(actions, -self.limits.max_step, self.limits.max_step)
-            return np.clip(self.command + step, self.limits.low, self.limits.high)
-        return self.limits.apply(self.command, actions)
+            return np.clip(self.servos.target + step, self.limits.low, self.limits.high)
+        return self.limits.apply(self.servos.target, actions)
 
     def period(self, actions: np.ndarray | None = None,
                move: np.ndarray | None = None) -> PeriodResult:
@@ -167,27 +160,19 @@ class LaserBatch:
         if actions is not None:
             wanted = self.commands(actions)
             move = np.ones(B, bool) if move is None else np.asarray(move, bool)
-            new = np.where(move[:, None], wanted, self.command)
-            changed = (new != self.command).any(axis=1)
-            self.lag[changed] = bench.servo_lag
-            self.command = new
+            self.servos.command(np.where(move[:, None], wanted, self.servos.target))
         first = self.round_trip + 1
         ks = np.stack([np.asarray(self._scenarios[i](np.arange(first[i], first[i] + P)),
                                   float) for i in range(B)], axis=1)       # (P, B)
         e_true, m_true = np.full((P, B), np.nan), np.full((P, B), np.nan)
         drives = np.empty((P, B, 4))
         instant = bench.instant_servos
-        if instant:
-            self.drive = self.command.copy()
-            self.optic = self.command.copy()
-            for cavity, lanes in self._groups:
-                cavity.set_angles(self.optic[lanes])
         for j in range(P):
-            if not instant:
-                self._advance_servos()
+            if j == 0 or not instant:  # instant servos move once, on the first round trip
+                optic = self.servos.advance()
                 for cavity, lanes in self._groups:
-                    cavity.set_angles(self.optic[lanes])
-            drives[j] = self.drive
+                    cavity.set_angles(optic[lanes])
+            drives[j] = self.servos.drive
             for cavity, lanes in self._groups:
                 cavity.set_birefringence(ks[j, lanes])
                 result = cavity.step()
@@ -197,24 +182,6 @@ class LaserBatch:
                     cavity.set_fields(u, v, np.array([k]))
         self.round_trip += P
         return self._measure(e_true, m_true, drives, ks[-1], first)
-
-    def _advance_servos(self) -> None:
-        """One round trip of every lane's servos (``core/bench.py`` Bench.advance)."""
-        c = self.bench
-        waiting = self.lag > 0
-        self.lag[waiting] -= 1
-        gap = self.command - self.drive
-        if c.slew_rate > 0:
-            moved = np.where(np.abs(gap) <= c.slew_rate, self.command,
-                             self.drive + np.clip(gap, -c.slew_rate, c.slew_rate))
-        else:
-            moved = self.command
-        self.drive = np.where(waiting[:, None], self.drive, moved)
-        if c.backlash > 0:
-            half = c.backlash / 2
-            self.optic = np.clip(self.optic, self.drive - half, self.drive + half)
-        else:
-            self.optic = self.drive.copy()
 
     def _measure(self, e_true: np.ndarray, m_true: np.ndarray, drives: np.ndarray,
                  k_last: np.ndarray, first: np.ndarray) -> PeriodResult:
@@ -230,16 +197,16 @@ class LaserBatch:
                 angles[:, i] += c.encoder_noise * draws[:, 2:]
         if c.detector_saturation > 0:
             e_read = np.minimum(e_read, c.detector_saturation)
-        e_read = _quantize(e_read, c.detector_resolution)
-        m_read = _quantize(m_read, c.detector_resolution)
-        angles = _quantize(angles, c.encoder_resolution)
+        e_read = quantize(e_read, c.detector_resolution)
+        m_read = quantize(m_read, c.detector_resolution)
+        angles = quantize(angles, c.encoder_resolution)
         if c.spectrum_refresh > 1:
             for j in range(P):
                 fresh = ((first + j - 1) % c.spectrum_refresh == 0) & finite[j]
                 self.last_m = np.where(fresh, m_read[j], self.last_m)
                 m_read[j] = np.where(np.isfinite(self.last_m), self.last_m, m_read[j])
         tail = slice(P - n, P)
-        at_command = np.abs(angles - self.command[None]).max(axis=2) \
+        at_command = np.abs(angles - self.servos.target[None]).max(axis=2) \
             <= self.config.settle_tolerance
         use = (finite & at_command)[tail]                                   # (n, B)
         settled = use.any(axis=0)
@@ -256,7 +223,7 @@ class LaserBatch:
                 measurement[i, 2:] = np.median(angles[rows, i], axis=0)
                 o_true[i] = e_true[rows, i].mean() / m_true[rows, i].mean()
             else:
-                measurement[i] = [0.0, 1.0, *self.command[i]]
+                measurement[i] = [0.0, 1.0, *self.servos.target[i]]
         with np.errstate(divide='ignore', invalid='ignore'):
             reward = np.where(measurement[:, 1] > 0, measurement[:, 0] / measurement[:, 1],
                               0.0)
