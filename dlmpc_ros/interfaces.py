@@ -105,22 +105,18 @@ def measured_state(data: Sequence[float]) -> list[float]:
 MAX_ROUND_TRIP = 2 ** 53
 
 
+def counted_fault(data: Sequence[float], fields: Sequence[str]) -> str | None:
+    """What is wrong with a vector of ``fields`` whose first is a round trip (lengths,
+    non-finite values, a round trip that is not a count in 0..MAX_ROUND_TRIP), or None."""
+    fault = vector_fault(data, fields, 1e300)
+    if fault is None and not (0 <= data[0] <= MAX_ROUND_TRIP and data[0] == int(data[0])):
+        fault = f'round_trip = {data[0]} is not a count'
+    return fault
+
+
 def state_fault(data: Sequence[float]) -> str | None:
-    """What is wrong with a /laser/state vector (lengths, non-finite values, a round trip
-    that is not a count in 0..MAX_ROUND_TRIP), or None."""
-    fault = vector_fault(data, STATE_FIELDS, 1e300)
-    if fault is None and not (0 <= data[0] <= MAX_ROUND_TRIP and data[0] == int(data[0])):
-        fault = f'round_trip = {data[0]} is not a count'
-    return fault
-
-
-def measurement_fault(data: Sequence[float]) -> str | None:
-    """What is wrong with a /controller/measurement vector (lengths, non-finite values,
-    a round trip that is not a count), or None."""
-    fault = vector_fault(data, MEASUREMENT_FIELDS, 1e300)
-    if fault is None and not (0 <= data[0] <= MAX_ROUND_TRIP and data[0] == int(data[0])):
-        fault = f'round_trip = {data[0]} is not a count'
-    return fault
+    """What is wrong with a /laser/state vector (:func:`counted_fault`), or None."""
+    return counted_fault(data, STATE_FIELDS)
 
 
 def usable_state(data: Sequence[float], warn: RateLimitedLog) -> bool:

@@ -54,7 +54,7 @@ class VAEEstimatorNode(Node):
                         *(f'z{i + 1}' for i in range(self.estimator.encoder.latent))]
 
     def _on_measurement(self, msg: Float64MultiArray) -> None:
-        fault = itf.measurement_fault(msg.data)
+        fault = itf.counted_fault(msg.data, itf.MEASUREMENT_FIELDS)
         if fault is not None:
             self._warn.dropped(itf.TOPIC_MEASUREMENT, fault)
             return
