@@ -16,7 +16,11 @@ venv: $(STAMP)
 $(STAMP): requirements.txt setup.py
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.txt
-	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
+	# --use-pep517: once `make ros2cli` has installed wheel, pip would otherwise reinstall
+	# by the legacy `setup.py develop`, which puts the console scripts in .venv/lib/dlmpc_ros
+	# (setup.cfg) instead of .venv/bin
+	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation \
+	    --use-pep517 -e .
 	$(PY) -c "from dlmpc_ros.core.cavity import compile_kernels; compile_kernels()"
 	$(PY) -m compileall -q dlmpc_ros
 	touch $(STAMP)

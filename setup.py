@@ -28,6 +28,8 @@ setup(
         'rosbags>=0.11,<0.12',
         'dask>=2024.1',
         'distributed>=2024.1',
+        # the Bayesian-optimization baseline's Gaussian process (control/bo.py)
+        'scikit-learn>=1.5,<2',
     ],
     extras_require={'ml': ['torch>=2.2,<3', 'tqdm>=4.60'],
                     # dlmpc_ros.gym only (docs/gym.md); the nodes never import it
@@ -56,7 +58,7 @@ setup(
         # controllers by name (docs/controllers.md): any installed package may add its own
         f'{PACKAGE}.controllers': [
             f'{name} = {PACKAGE}.control.factory:{name}'
-            for name in ('dlmpc', 'esc', 'ga', 'passive', 'fixed_best', 'oracle')
+            for name in ('dlmpc', 'esc', 'ga', 'passive', 'fixed_best', 'oracle', 'bo')
         ],
     },
 )

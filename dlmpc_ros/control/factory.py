@@ -3,13 +3,14 @@ the shipped model files (used by the controller nodes and by the evaluation, so 
 both run exactly the same objects).
 
 The factories :func:`dlmpc`, :func:`esc`, :func:`ga`, :func:`passive`,
-:func:`fixed_best` and :func:`oracle` are registered by name in setup.py (entry-point
+:func:`fixed_best`, :func:`oracle` and :func:`bo` are registered by name in setup.py (entry-point
 group ``dlmpc_ros.controllers``), like any plug-in's (:mod:`dlmpc_ros.control.plugins`).
 A factory raises :class:`~dlmpc_ros.learning.checkpoint.ModelFileError` (missing or
 corrupt file, with the command that regenerates it) or ValueError (bad settings);
 :func:`make_controller` reports either as one line (ControllerSpecError). The
 torch-based pieces (DL-MPC, estimator) are imported when they are built, so that a
-baseline controller starts without loading torch.
+baseline controller starts without loading torch (and the Bayesian optimization's
+scikit-learn likewise).
 """
 
 from __future__ import annotations
@@ -29,11 +30,12 @@ from dlmpc_ros.control.plugins import build
 from dlmpc_ros.control.step import Controller
 from dlmpc_ros.learning.tables import load_baselines
 
-if TYPE_CHECKING:  # torch-based: imported where they are built
+if TYPE_CHECKING:  # torch-based (and scikit-learn-based): imported where they are built
+    from dlmpc_ros.control.bo import BOController
     from dlmpc_ros.control.dlmpc import DLMPCController
     from dlmpc_ros.control.estimator import SurrogateEstimator
 
-CONTROLLERS = ('dlmpc', 'esc', 'ga', 'passive', 'fixed_best', 'oracle')
+CONTROLLERS = ('dlmpc', 'esc', 'ga', 'passive', 'fixed_best', 'oracle', 'bo')
 BASELINES_FILE = 'oracle.npz'
 
 
@@ -119,6 +121,13 @@ def ga(models_dir: Path, limits: AngleLimits, *,
     return GAController(ga_config, limits)
 
 
+def bo(models_dir: Path, limits: AngleLimits) -> BOController:
+    """Bayesian optimization with the shipped :class:`~dlmpc_ros.control.bo.BOConfig`
+    (no model file)."""
+    from dlmpc_ros.control.bo import BOController
+    return BOController(limits=limits)
+
+
 def passive(models_dir: Path, limits: AngleLimits, *, angles: np.ndarray | None = None,
             initial_k: float | None = None) -> PassiveController:
     """Holds ``angles``, or the best angles for ``initial_k`` (the setting a person tuned
@@ -147,7 +156,7 @@ def make_baseline(name: str, models_dir: Path, limits: AngleLimits | None = None
                   angles: np.ndarray | None = None, initial_k: float | None = None,
                   ga_config: GAConfig | None = None) -> Controller:
     """A built-in baseline controller: ``esc``, ``ga`` (with ``ga_config``), ``passive``
-    (``angles``, or the best for ``initial_k``), ``fixed_best`` or ``oracle``."""
+    (``angles``, or the best for ``initial_k``), ``fixed_best``, ``oracle`` or ``bo``."""
     if name not in CONTROLLERS[1:]:
         raise ValueError(f'unknown baseline {name!r}; choose one of {CONTROLLERS[1:]}')
     return build(name, models_dir, limits, angles=angles, initial_k=initial_k,

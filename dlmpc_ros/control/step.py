@@ -10,9 +10,10 @@ import numpy as np
 #: Modes a controller reports: the DL-MPC loops, holding (no usable input), baselines,
 #: the DL-MPC's lock acquisition scan, its curve tracking, the genetic algorithm, the
 #: DL-MPC's planned turns of its curve (tracking periods in which the planner moved it),
-#: and ``custom`` for a plug-in controller's own (docs/controllers.md).
+#: ``custom`` for a plug-in controller's own (docs/controllers.md), and Bayesian
+#: optimization. The index is published: a new mode goes at the end.
 MODES = ('inner', 'outer', 'hold', 'passive', 'fixed_best', 'esc', 'oracle', 'acquire',
-         'track', 'ga', 'plan', 'custom')
+         'track', 'ga', 'plan', 'custom', 'bo')
 
 
 @dataclass(frozen=True)
