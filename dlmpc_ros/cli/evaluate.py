@@ -17,7 +17,9 @@ plants of the documented family; each plant's envelope O*(K) divides its runs
 ``--benchmark lock --starts N`` scores auto-mode-locking instead: N cold starts from
 random angles and a noise field, K drawn per start, ``--budget`` round trips each
 (:mod:`dlmpc_ros.evaluation.lock_benchmark`); writes ``OUT/lock.json`` and
-``OUT/lock.png``.
+``OUT/lock.png``. ``--budget`` given several times is a budget sweep: every start runs
+once at the largest, each smaller one is scored from its time to lock, and the smallest
+is the headline.
 
 ``--suite stress`` runs the stress suite instead of ``--scenario`` (fast mode): 16
 conditions (four drifts over the whole K range, each on ideal servos, the ``servo-3`` and
@@ -56,8 +58,8 @@ from dlmpc_ros.core.drift import DEFAULTS, parse_settings
 from dlmpc_ros.evaluation.figures import plot_surrogate, plot_tracking
 from dlmpc_ros.evaluation.presets import SCENARIOS, preset_settings
 from dlmpc_ros.core.plants import PHYSICS_FIELDS, parse_plant, plant_parameters
-from dlmpc_ros.evaluation.lock_benchmark import (DRIFTS, LockSpec, LockTask, lock_metrics,
-                                                 plot_lock_times, run_starts)
+from dlmpc_ros.evaluation.lock_benchmark import (DRIFTS, LockSpec, LockTask, plot_lock_times,
+                                                 run_starts, sweep_metrics)
 from dlmpc_ros.evaluation.report import (lock_table, measure, summary_line, write_plant_table,
                                          write_summary)
 from dlmpc_ros.evaluation.record import RunRecord
@@ -137,7 +139,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help='drift: the scenarios (default); lock: the auto-mode-locking '
                         'benchmark of cold starts')
     p.add_argument('--starts', type=int, default=100, help='lock: cold starts per plant')
-    p.add_argument('--budget', type=int, default=1000, help='lock: round trips per start')
+    p.add_argument('--budget', type=int, action='append', metavar='N',
+                   help='lock: round trips per start (default: 1000); repeatable: a budget '
+                        'sweep, run once at the largest, each scored from the times to lock, '
+                        'the smallest as the headline (OUT/lock.md, a log-axis lock.png)'),
     p.add_argument('--lock-drift', choices=DRIFTS, default='held',
                    help='lock: K held at its draw, or drifting slowly around it')
     p.add_argument('--lock-k', type=float, metavar='K',
@@ -182,7 +187,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         p.error('--condition selects conditions of a --suite')
     if args.lock_k is not None and (args.benchmark != 'lock' or not -0.3 <= args.lock_k <= 0.3):
         p.error('--lock-k applies to --benchmark lock and must be in [-0.3, 0.3]')
-    if args.workers < 1 or args.starts < 1 or args.budget < 1:
+    args.budget = sorted(set(args.budget or [1000]))
+    if args.workers < 1 or args.starts < 1 or args.budget[0] < 1:
         p.error('--workers, --starts and --budget must be >= 1')
     try:
         args.custom_plant = (plant_parameters(parse_plant(args.plant)) if args.plant
@@ -467,9 +473,10 @@ def lock_benchmark(args: argparse.Namespace, plants: list[Plant], started: float
     """The auto-mode-locking benchmark of every controller on every plant."""
     per_task = 10
     jobs, tasks = [], []
+    budgets, headline = args.budget, args.budget[0]  # a sweep runs at the largest
     for plant in plants:
         for controller in args.controller:
-            spec = LockSpec(controller, args.starts, args.budget, period=args.period,
+            spec = LockSpec(controller, args.starts, budgets[-1], period=args.period,
                             max_step=args.max_step, drift=args.lock_drift, k=args.lock_k,
                             plant=dict(plant.parameters), bench=dict(args.bench))
             for first in range(0, args.starts, per_task):
@@ -483,7 +490,8 @@ def lock_benchmark(args: argparse.Namespace, plants: list[Plant], started: float
     failed = [r for r in results if isinstance(r, TaskFailure)]
     for failure in failed:
         print(f'dlmpc-evaluate: {failure}', file=sys.stderr)
-    summary: dict = {'settings': {'starts': args.starts, 'budget': args.budget,
+    summary: dict = {'settings': {'starts': args.starts, 'budget': headline,
+                                  'budgets': budgets,
                                   'drift': args.lock_drift, 'K': args.lock_k,
                                   'hold_periods': 20,
                                   'lock_fraction': 0.5, 'period': args.period},
@@ -496,15 +504,18 @@ def lock_benchmark(args: argparse.Namespace, plants: list[Plant], started: float
                       and not isinstance(r, TaskFailure) for s in r]
             spec = next(spec for label, name, spec in jobs
                         if label == plant.label and name == controller)
-            entry['controllers'][controller] = lock_metrics(starts, spec)
-            m = entry['controllers'][controller]
-            print(f'{plant.label} {controller}: locked {m["locked"]}/{m["starts"]}, median '
-                  f'{m["median_round_trips"]} round trips, p90 {m["p90_round_trips"]}',
-                  flush=True)
+            sweep = sweep_metrics(starts, spec, budgets)
+            entry['controllers'][controller] = {**sweep[str(headline)], 'budgets': sweep}
+            for budget, m in sweep.items():
+                print(f'{plant.label} {controller} (budget {budget}): locked '
+                      f'{m["locked"]}/{m["starts"]}, median {m["median_round_trips"]} round '
+                      f'trips, p90 {m["p90_round_trips"]}', flush=True)
         summary['plants'][plant.label] = entry
-        plot_lock_times(entry['controllers'], args.budget, f'{plant.label}: {args.starts} cold '
-                        f'starts', args.out / f'lock-{plant.label}.png' if len(plants) > 1
-                        else args.out / 'lock.png')
+        plot_lock_times({name: m['budgets'][str(budgets[-1])]
+                         for name, m in entry['controllers'].items()}, budgets[-1],
+                        f'{plant.label}: {args.starts} cold starts',
+                        args.out / f'lock-{plant.label}.png' if len(plants) > 1
+                        else args.out / 'lock.png', budgets if len(budgets) > 1 else ())
     if len(plants) == 1:  # the one plant's figures at the top level
         summary.update(summary['plants'][plants[0].label]['controllers'])
     summary['wall_seconds'] = round(time.monotonic() - started, 1)

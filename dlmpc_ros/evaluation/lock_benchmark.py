@@ -9,10 +9,17 @@ slowly (a random walk around it, the ``drift`` option), and a budget of round tr
 start is locked once O >= 0.5 O*(K(t)) has held for 20 control periods; its time to lock
 is the round trip at which that hold began. The same start (angles, K, field) is given
 to every controller.
+
+A budget sweep (:func:`sweep_metrics`) runs each start once, at the largest budget, and
+scores every smaller budget B from it: the loop is causal (K(r), the noise and every
+controller's decisions up to round trip B do not depend on the budget), and a start
+counts as locked within B exactly when its first hold ended by then (time to lock + the
+hold <= B), which is what a run of B round trips would have found.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -154,8 +161,10 @@ def lock_metrics(starts: list[dict], spec: LockSpec) -> dict:
     """Success rate and time to lock of a benchmark's starts.
 
     ``median_round_trips`` and ``median_control_periods`` are over the starts that
-    locked; ``p90_round_trips`` is over all starts, one that never locked counting as
-    longer than any (None when fewer than 90 % locked)."""
+    locked; ``p90_round_trips`` and ``p90_control_periods`` are over all starts, one that
+    never locked counting as longer than any (None when fewer than 90 % locked). Control
+    periods to lock are decisions to lock: for a search method (``ga``, ``esc``, ``bo``)
+    an upper bound on the angle settings it tried, each period commanding at most one."""
     times = np.array([s['round_trips'] for s in starts if s['locked']], float)
     success = times.size / max(len(starts), 1)
     ordered = np.sort(np.r_[times, np.full(len(starts) - times.size, np.inf)])
@@ -165,11 +174,37 @@ def lock_metrics(starts: list[dict], spec: LockSpec) -> dict:
             'p90_round_trips': float(p90) if np.isfinite(p90) else None,
             'median_control_periods': (float(np.median(times)) / spec.period
                                        if times.size else None),
+            'p90_control_periods': float(p90) / spec.period if np.isfinite(p90) else None,
             'round_trips_to_lock': [s['round_trips'] for s in starts]}
 
 
-def plot_lock_times(results: dict[str, dict], budget: int, title: str, path: Path) -> Path:
-    """The share of starts locked by each round trip, one line per controller."""
+def within_budget(starts: list[dict], budget: int, spec: LockSpec) -> list[dict]:
+    """The starts of a run of ``spec.budget`` round trips as a run of ``budget`` (at most
+    ``spec.budget``) would have scored them: locked only where the first hold ended
+    within ``budget`` (time to lock + ``hold_periods`` periods <= ``budget``)."""
+    if not 1 <= budget <= spec.budget:
+        raise ValueError(f'a budget of the sweep must be in [1, {spec.budget}] (the run\'s), '
+                         f'got {budget}')
+    hold = spec.hold_periods * spec.period
+    out = []
+    for s in starts:
+        locked = bool(s['locked']) and s['round_trips'] + hold <= budget
+        out.append({**s, 'locked': locked, 'round_trips': s['round_trips'] if locked else None})
+    return out
+
+
+def sweep_metrics(starts: list[dict], spec: LockSpec, budgets: Sequence[int]) -> dict:
+    """:func:`lock_metrics` at every budget of ``budgets`` (each at most ``spec.budget``,
+    the budget the starts ran with), keyed by the budget as a str (JSON keys)."""
+    return {str(b): lock_metrics(within_budget(starts, b, spec), spec)
+            for b in sorted(set(int(b) for b in budgets))}
+
+
+def plot_lock_times(results: dict[str, dict], budget: int, title: str, path: Path,
+                    budgets: Sequence[int] = ()) -> Path:
+    """The share of starts locked by each round trip (its time to lock), one line per
+    controller, over ``budget`` round trips. With ``budgets`` (a sweep) the round trips
+    are on a log axis, with a dotted line at each budget."""
     import matplotlib
 
     matplotlib.use('Agg')
@@ -178,11 +213,17 @@ def plot_lock_times(results: dict[str, dict], budget: int, title: str, path: Pat
     fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
     grid = np.arange(budget + 1)
     for name, metrics in results.items():
-        times = np.array([t for t in metrics['round_trips_to_lock'] if t is not None], float)
-        share = (times[None, :] <= grid[:, None]).sum(axis=1) / max(metrics['starts'], 1)
+        times = np.sort([t for t in metrics['round_trips_to_lock'] if t is not None])
+        share = np.searchsorted(times, grid, side='right') / max(metrics['starts'], 1)
+        within = f' within {budget}' if budgets else ''
         ax.step(grid, share, where='post',
-                label=f"{name} ({100 * metrics['success_rate']:.0f} %)")
-    ax.set_xlabel('round trip')
+                label=f"{name} ({100 * metrics['success_rate']:.0f} %{within})")
+    if budgets:
+        ax.set_xscale('log')
+        ax.set_xlim(10, budget)
+        for b in sorted(budgets):
+            ax.axvline(b, color='0.5', linestyle=':', linewidth=1)
+    ax.set_xlabel('round trip' + (' (dotted: the budgets)' if budgets else ''))
     ax.set_ylabel('share of cold starts locked')
     ax.set_ylim(0, 1.02)
     ax.grid(alpha=0.3)

@@ -164,4 +164,22 @@ def lock_table(summary: dict) -> str:
                 'median_round_trips', 'p90_round_trips', 'median_control_periods')]
             lines.append(f"| {plant} | {controller} | {100 * m['success_rate']:.0f} % | "
                          + ' | '.join(cells) + ' |')
+    budgets = s.get('budgets') or [s['budget']]
+    if len(budgets) > 1:
+        lines += ['', f"Budget sweep: every start ran {max(budgets)} round trips once; a "
+                  'smaller budget counts the starts whose hold ended within it. Control '
+                  'periods to lock bound the angle settings a search method tried (one a '
+                  'period at most).', '',
+                  '| plant | controller | budget | success | median round trips | '
+                  'p90 round trips | median periods | p90 periods |',
+                  '|---|---|---|---|---|---|---|---|']
+        for plant, entry in summary['plants'].items():
+            for controller, m in entry['controllers'].items():
+                for budget, b in m['budgets'].items():
+                    cells = ['-' if b.get(key) is None else f'{b[key]:.0f}' for key in (
+                        'median_round_trips', 'p90_round_trips', 'median_control_periods',
+                        'p90_control_periods')]
+                    lines.append(f"| {plant} | {controller} | {int(budget)} | "
+                                 f"{100 * b['success_rate']:.0f} % | " + ' | '.join(cells)
+                                 + ' |')
     return '\n'.join(lines) + '\n'

@@ -1,11 +1,15 @@
 """The auto-mode-locking benchmark: its metrics, and a tiny real run."""
 
+import json
+
 import numpy as np
 import pytest
 
+from dlmpc_ros.cli.evaluate import main as evaluate
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.evaluation.lock_benchmark import (LockSpec, LockTask, lock_metrics, run_starts,
-                                                 start_conditions)
+                                                 start_conditions, sweep_metrics,
+                                                 within_budget)
 from dlmpc_ros.learning.tables import load_baselines
 from dlmpc_ros.paths import models_dir
 
@@ -59,3 +63,43 @@ def test_a_task_runs_the_dl_mpc_with_the_settings_it_is_given():
 
     assert locked(None) == [True, True]
     assert locked(DLMPCConfig(acquisition=None))[1] is False  # start 3 needs the scan
+
+
+def test_a_budget_sweep_scores_each_budget_as_a_run_of_that_budget_would():
+    """Starts 1 and 2 of the BO lock at round trips 384 and 265 (a hold of 50): run once at
+    600, each smaller budget derived from the times to lock is what a run of that budget
+    finds, to the round trip (434 = 384 + 50 holds start 1's lock, 433 does not)."""
+    tables = load_baselines(models_dir() / 'oracle.npz')
+
+    def run(budget: int) -> list[dict]:
+        spec = LockSpec('bo', starts=2, budget=budget, hold_periods=5)
+        return run_starts(LockTask(spec, (1, 2), str(models_dir()), tables['K'],
+                                   tables['O_star']))
+
+    spec = LockSpec('bo', starts=2, budget=600, hold_periods=5)
+    longest = run(600)
+    assert [s['round_trips'] for s in longest] == [384, 265]
+    for budget in (300, 433, 434):
+        assert within_budget(longest, budget, spec) == run(budget), budget
+    sweep = sweep_metrics(longest, spec, [600, 300, 434])
+    assert list(sweep) == ['300', '434', '600']
+    assert [sweep[b]['locked'] for b in sweep] == [0, 2, 2]
+    assert sweep['434']['median_control_periods'] == pytest.approx(32.45)
+    assert sweep['600']['p90_control_periods'] == 38.4
+    with pytest.raises(ValueError, match='budget'):
+        within_budget(longest, 601, spec)
+
+
+def test_dlmpc_evaluate_sweeps_budgets_with_the_smallest_as_the_headline(tmp_path):
+    out = tmp_path / 'lock'
+    assert evaluate(['--benchmark', 'lock', '--starts', '2', '--budget', '300', '--budget',
+                     '150', '--controller', 'bo', '--workers', '1', '--models-dir',
+                     str(models_dir()), '--out', str(out)]) == 0
+    summary = json.loads((out / 'lock.json').read_text())
+    assert summary['settings']['budget'] == 150 and summary['settings']['budgets'] == [150, 300]
+    bo = summary['bo']
+    assert set(bo['budgets']) == {'150', '300'}
+    assert {k: v for k, v in bo.items() if k != 'budgets'} == bo['budgets']['150']
+    table = (out / 'lock.md').read_text()
+    assert 'Budget sweep' in table and '| nominal | bo | 300 |' in table
+    assert (out / 'lock.png').stat().st_size > 0
