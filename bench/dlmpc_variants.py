@@ -58,10 +58,11 @@ class VariantRun:
     variant: str
     overrides: dict
     plant: str            # 'nominal' or a family seed
-    scenario: str
+    scenario: str         # a scenario preset, or a suite condition's name
     seed: int
     round_trips: int
     models_dir: str
+    condition: dict | None = None  # a stress suite condition's to_dict() (else None)
 
 
 @dataclass(frozen=True)
@@ -120,7 +121,13 @@ def run_one(job: VariantRun) -> dict:
     from dlmpc_ros.evaluation.runs import RunSpec, run_fast
 
     plant, envelope = plant_and_envelope(job.plant, Path(job.models_dir))
-    spec = RunSpec(job.scenario, job.seed, 'dlmpc', round_trips=job.round_trips, plant=plant)
+    if job.condition is None:
+        spec = RunSpec(job.scenario, job.seed, 'dlmpc', round_trips=job.round_trips,
+                       plant=plant)
+    else:
+        spec = RunSpec(job.condition['scenario'], job.seed, 'dlmpc',
+                       settings=job.condition['settings'], round_trips=job.round_trips,
+                       plant=plant, bench=job.condition['bench'], condition=job.scenario)
     config, run, models = variant_config(job.overrides, job.models_dir, spec.max_step)
     spec = replace(spec, **run)
     controller = load_dlmpc(models, config)
@@ -204,6 +211,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--seeds', type=int, nargs='+', default=[1, 2, 3])
     p.add_argument('--scenario', action='append', choices=SCENARIOS,
                    help='repeatable (default: all four)')
+    p.add_argument('--condition', action='append', default=[], metavar='NAME',
+                   help='a stress suite condition (e.g. walk-servo6), repeatable, instead '
+                        'of --scenario')
     p.add_argument('--nominal', action='store_true',
                    help='run the nominal cavity (the default without --plant-family)')
     p.add_argument('--plant-family', type=int, action='append', default=[], metavar='SEED')
@@ -223,10 +233,19 @@ def main(argv: list[str] | None = None) -> int:
         plant_and_envelope(plant, args.models_dir)
     if args.lock_starts:
         return main_lock(args, variants, plants)
+    conditions: dict[str, dict | None] = {scenario: None for scenario in scenarios}
+    if args.condition:
+        from dlmpc_ros.evaluation.suites import stress_conditions
+        suite = stress_conditions()
+        unknown = [c for c in args.condition if c not in suite]
+        if unknown:
+            p.error(f'unknown condition(s) {unknown}; one of {sorted(suite)}')
+        conditions = {c: suite[c].to_dict() for c in args.condition}
+        scenarios = list(conditions)
     jobs = [VariantRun(name, overrides, plant, scenario, seed, args.round_trips,
-                       str(args.models_dir))
+                       str(args.models_dir), condition)
             for name, overrides in variants.items() for plant in plants
-            for scenario in scenarios for seed in args.seeds]
+            for scenario, condition in conditions.items() for seed in args.seeds]
     results = run_tasks(run_one, jobs, args.workers, desc='variant runs')
     failed = [r for r in results if isinstance(r, TaskFailure)]
     runs = [r for r in results if not isinstance(r, TaskFailure)]

@@ -105,7 +105,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument('--models-dir', type=Path,
                    help='model files for the controller (default: the installed models/)')
     p.add_argument('--controller-param', action='append', default=[], metavar='KEY=VALUE',
-                   help='controller node parameter override, repeatable (e.g. apply_all=true)')
+                   help='controller node parameter override, repeatable (e.g. track_guard=0.9)')
     p.add_argument('--scenario', default='sinusoidal', choices=SCENARIOS,
                    help='birefringence drift scenario (default: %(default)s)')
     p.add_argument('--scenario-param', action='append', default=[], metavar='KEY=VALUE',

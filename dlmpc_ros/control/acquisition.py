@@ -10,11 +10,7 @@ that is not the nominal cavity has its own scale of O, and a state far under its
 best has lost its pulse for another) and, after ``patience`` unlocked periods
 (``relock_patience`` once it has been locked in the run), scans a list of candidate
 angle sets from a :class:`ScanSource`, dwelling ``dwell_periods`` at each once the servos
-are there, until O has stayed at the threshold for ``confirm_periods``. With
-``compare_twins`` (off by default: the curve tracker's entry trial turns the laser onto
-the other branch instead, keeping the pulse), where that point has a mirror twin still
-to come in the pass, it holds the point and tries the twin ``compare_periods`` each and
-keeps the better (the first point that locks can be on the weaker branch). Then control
+are there, until O has stayed at the threshold for ``confirm_periods``. Then control
 goes back to the DL-MPC's modes, told which point locked
 (:attr:`LockSupervisor.locked_at`). The scan's points are reached inside the servo range
 less ``turn_room``, so the tracker's quarter turns between branches fit either way round.
@@ -81,22 +77,6 @@ class AcquisitionConfig:
     while the servos travel between points can be a transient that dies at once). 2
     locked 4 more of 100 cold starts on one development plant and lost 0.005 on the
     family's random walks (``bench/results/acquisition_confirm.md``): 1 by default."""
-    compare_twins: bool = False
-    """Where the scan locks on a point whose mirror twin (the other branch at the same
-    curve point) it has not tried in this pass, hold there ``compare_periods`` periods,
-    then try the twin as long, and keep the one with the higher median O over the later
-    half of its periods. Off: the scan stops at the first point that passes the lock
-    level, which can be the weaker branch (on some plants a weak pulse at about 0.4 O*
-    holds all along the curve at K > 0, ``bench/results/compare_twins.md``), and the
-    tracker's entry trial turns it onto the twin, keeping the pulse. The jump to the twin
-    loses the pulse, and at |K| = 0.28 the twin's point does not start one from noise:
-    on the development plants' lock benchmark, with the tracker's turn settings of
-    ``bench/results/entry_turn.md``, 899 of 900 cold starts locked, the median 8-20
-    periods (896 and 14-19 with the comparison and the turn settings before)."""
-    compare_periods: int = 2
-    """Periods the scan holds each of the two twins it compares (once the servos are
-    there). 2 rather than 4: the same starts locked on the development plants, 2 periods
-    sooner (``bench/results/compare_twins.md``)."""
     turn_room: float = 2.0
     """Room [rad] the scan leaves every servo from the ends of its range: it takes each
     point at its pi-equivalent nearest the servo inside ``[low + turn_room, high -
@@ -109,15 +89,19 @@ class AcquisitionConfig:
     mirror twin, in this order (from the simulator: c(-0.25) starts a pulse from noise at
     every K it was tried at)."""
 
+    home: str = 'off'
+    """EXPERIMENT (bench): 'first': a relock pass starts at the best angles measured in the
+    last ``HOME_WINDOW`` locked periods; 'now': go there at once when the lock is lost."""
+
     def __post_init__(self) -> None:
+        if self.home not in ('off', 'first', 'now'):
+            raise ValueError(f"home must be 'off', 'first' or 'now', got {self.home!r}")
         if not 0 < self.lock_fraction < 1:
             raise ValueError(f'lock_fraction must be in (0, 1), got {self.lock_fraction}')
         if min(self.patience, self.relock_patience, self.dwell_periods, self.scan_points,
-               self.travel_periods, self.level_window, self.confirm_periods,
-               self.compare_periods) < 1:
+               self.travel_periods, self.level_window, self.confirm_periods) < 1:
             raise ValueError('patience, relock_patience, dwell_periods, scan_points, '
-                             'travel_periods, level_window, confirm_periods and '
-                             'compare_periods must be >= 1')
+                             'travel_periods, level_window and confirm_periods must be >= 1')
         checks.positive(self, 'arrive_tolerance')
         if not (np.isfinite(self.turn_room) and self.turn_room >= 0):
             raise ValueError(f'turn_room must be >= 0 rad, got {self.turn_room}')
@@ -137,9 +121,6 @@ class ScanPoint:
     """The tracking curve's branch it lies on (1: the curve, -1: its twin; 0: none)."""
     estimate: float = float('nan')
     """Its curve parameter on the tracker's estimate axis (K units; NaN: none)."""
-    pair: int = -1
-    """Points of a pass with the same ``pair`` (>= 0) are mirror twins, compared before
-    the scan lets go (-1: none)."""
 
 
 class ScanSource(Protocol):
@@ -178,6 +159,10 @@ class MapScan:
             self.last_surrogate = float(surrogate)
 
 
+#: Locked periods whose best measured angles are the scan's home after a loss.
+HOME_WINDOW = 20
+
+
 class LockSupervisor:
     """Per control period: None while the DL-MPC loops are in charge, else the angles
     (4,) [rad] of the scan.
@@ -190,9 +175,14 @@ class LockSupervisor:
 
     def __init__(self, threshold: float, source: ScanSource,
                  config: AcquisitionConfig | None = None,
-                 limits: AngleLimits | None = None) -> None:
+                 limits: AngleLimits | None = None,
+                 position: Callable[[], tuple[int, float]] | None = None) -> None:
         if not threshold > 0:
             raise ValueError(f'lock threshold must be > 0, got {threshold}')
+        self.position = position
+        #: (O, point) of the latest locked periods; the best is where a relock starts
+        self._homes: deque[tuple[float, ScanPoint]] = deque(maxlen=HOME_WINDOW)
+        self._home_pending = False
         self.config = config or AcquisitionConfig()
         self.threshold = float(threshold)
         self.source = source
@@ -206,12 +196,6 @@ class LockSupervisor:
         self._order: list[ScanPoint] = []
         self._target: ScanPoint | None = None
         self._dwell = self._travel = 0
-        #: the comparison of two twins under way: '' (none), 'first' (holding the point
-        #: that locked), 'twin' (trying its twin), 'back' (returning to the first)
-        self._phase = ''
-        self._first: ScanPoint | None = None
-        self._first_objective = 0.0
-        self._seen: list[float] = []  # O measured at the point being compared
 
     def locked(self, objective: float) -> bool:
         """Whether O is at the lock threshold and at ``relock_fraction`` of the level."""
@@ -230,20 +214,22 @@ class LockSupervisor:
                 and self._locked_run < self.config.confirm_periods:
             # over the level while scanning: hold course until it has lasted
             return self._toward(np.asarray(current, float))
-        if self._phase or (locked and self._target is not None and self._twin_untried()):
-            compared = self._compare(objective, locked, np.asarray(current, float))
-            if compared is not None:
-                return compared
-            locked = self.locked(objective)
         if locked:
+            if self._target is None and self.config.home != 'off':
+                branch, estimate = self.position() if self.position else (0, float('nan'))
+                self._homes.append((float(objective), ScanPoint(
+                    np.array(current, float), branch, estimate)))
+            self._home_pending = True
             self.was_locked = True
             self.source.note_locked(surrogate)
             self.locked_at = self._target
             self.unlocked = 0
-            self._order, self._target, self._phase = [], None, ''
+            self._order, self._target = [], None
             return None
         self.unlocked += 1
         cfg = self.config
+        if cfg.home == 'now' and self.unlocked == 1 and self._homes and self._home_pending:
+            return self._scan(np.asarray(current, float))
         if self.unlocked <= (cfg.relock_patience if self.was_locked else cfg.patience):
             return None
         return self._scan(np.asarray(current, float))
@@ -266,58 +252,11 @@ class LockSupervisor:
         goal = into_range(nearest, low, high)
         return current + np.clip(goal - current, -np.pi / 4, np.pi / 4)
 
-    def _twin_untried(self) -> bool:
-        """Whether the scan's point has a twin still to come in this pass (and comparing
-        is on)."""
-        return (self.config.compare_twins and self._target is not None
-                and self._target.pair >= 0
-                and any(p.pair == self._target.pair for p in self._order))
-
     def _arrived(self, current: np.ndarray) -> bool:
         """Whether the servos are at the scan's point (or have travelled long enough)."""
         gap = wrap_angles(current - self._target.angles)  # pi-periodic
         return (float(np.max(np.abs(gap))) <= self.config.arrive_tolerance
                 or self._travel >= self.config.travel_periods)
-
-    def _compare(self, objective: float, locked: bool, current: np.ndarray) -> np.ndarray | None:
-        """A period of the comparison of two twins: the angles to hold, or None once it is
-        decided (the scan's point is then the one to keep, or the scan goes on)."""
-        cfg = self.config
-        settled = cfg.compare_periods - cfg.compare_periods // 2  # the later half
-        if not self._phase:  # the scan just locked at a point whose twin is to come
-            self._phase, self._first, self._seen = 'first', self._target, []
-        if self._phase == 'back':  # at the first point again: keep it once it locks
-            self._travel += 1
-            if self._arrived(current):
-                if locked:
-                    self._phase = ''
-                    return None
-                self._dwell += 1
-                if self._dwell >= cfg.dwell_periods:  # it did not lock again: scan on
-                    self._phase = ''
-                    return self._scan(current)
-            return self._toward(current)
-        if self._phase == 'twin':
-            self._travel += 1
-            if not self._arrived(current):
-                return self._toward(current)
-        self._seen.append(float(objective) if np.isfinite(objective) else 0.0)
-        if len(self._seen) < cfg.compare_periods:
-            return self._toward(current)
-        level = float(np.median(self._seen[-settled:]))
-        self._seen = []
-        if self._phase == 'first':
-            self._first_objective = level
-            twin = next(p for p in self._order if p.pair == self._target.pair)
-            self._order.remove(twin)
-            self._phase, self._target, self._travel = 'twin', twin, 0
-            return self._toward(current)
-        if level > self._first_objective and locked:  # the twin is better: keep it
-            self._phase = ''
-            return None
-        self._phase, self._target = 'back', self._first
-        self._travel = self._dwell = 0
-        return self._toward(current)
 
     def _scan(self, current: np.ndarray) -> np.ndarray:
         if self._target is not None:
@@ -329,6 +268,9 @@ class LockSupervisor:
                 return self._toward(current)
         if not self._order:
             self._order = self.source.pass_order(current)
+            if self._home_pending and self._homes:
+                self._order.insert(0, max(self._homes, key=lambda seen: seen[0])[1])
+            self._home_pending = False
         self._target = self._order.pop(0)
         self._dwell = self._travel = 0
         return self._toward(current)

@@ -17,20 +17,17 @@ priority order and the first that decides acts:
    improved by gradient ascent on the summed predicted objective
    (:mod:`~dlmpc_ros.control.planner`). The number of ascent iterations grows by one
    after an accurate prediction and shrinks after a poor one. The first planned angles
-   are applied (receding horizon), or the whole plan over N periods (``apply_all``, as
-   in the paper);
+   are applied (receding horizon);
 4. ``inner`` (while the history is shorter than the MP-RNN needs, and whenever the
    predictor's recent one-step error passes ``error_threshold``): the surrogate through
    the K-to-angles map;
 5. ``hold``: with no surrogate (a silent estimator) the angles are held.
 
-The predictor is scored only while it plans, so by default the outer loop, once its error
-has passed the threshold, stays off (the shipped setting: re-arming it costs objective in
-closed loop, ``bench/results/outer_loop.md``). ``monitor_prediction`` keeps scoring it in
-every mode so that it can take over again; ``trust_radius`` bounds how far a plan may move
-from the current angles, and ``objective_guard`` hands back to the inner loop when the
-measured O under the outer loop falls. Measured in ``bench/results/tracking.md``: the
-outer loop's plans lose objective, the tracker gains it. Angle limits and a maximum step
+The predictor is scored only while it plans, so the outer loop, once its error has
+passed the threshold, stays off (re-arming it, bounding its plans or guarding them by
+the measured O cost objective in closed loop: ``docs/evaluation.md``). Measured in
+``bench/results/tracking.md``: the outer loop's plans lose objective, the tracker gains
+it. Angle limits and a maximum step
 per period (servo speed) are enforced on every command.
 """
 
@@ -113,8 +110,9 @@ class DLMPCController:
             source = (MapScan(self.map_angles, cfg.acquisition.scan_points)
                       if self.tracker is None else
                       CurveScan(self.tracker, cfg.acquisition.curve_points))
-            self.acquisition = LockSupervisor(lock_fraction * target_objective, source,
-                                              cfg.acquisition, cfg.limits)
+            self.acquisition = LockSupervisor(
+                lock_fraction * target_objective, source, cfg.acquisition, cfg.limits,
+                position=None if self.tracker is None else self._tracked_position)
         self.monitor = PredictionMonitor(mprnn, cfg)
         self.outer = OuterLoop(self.monitor, cfg)
         self.modes: list[Mode] = [
@@ -122,13 +120,19 @@ class DLMPCController:
               if self.acquisition is not None else []),
             *([TrackMode(self.tracker)] if self.tracker is not None else []),
             self.outer, InnerLoop(self.map_angles), HoldMode()]
-        self._last_mode = ''
 
     def fresh(self) -> DLMPCController:
         """A controller with the same models and settings and no history."""
         return DLMPCController(self.kmap, self.model, self.config, self.target_objective,
                                self.curve, self.response, self.rotation_prior,
                                self.turn_correction)
+
+    def _tracked_position(self) -> tuple[int, float]:
+        """Where the tracker holds the laser: (branch, estimate), or (0, NaN) when it does
+        not track."""
+        if self.tracker is None or not self.tracker.active:
+            return 0, float('nan')
+        return self.tracker.branch, self.tracker.estimate
 
     def map_angles(self, surrogate: float) -> np.ndarray:
         """The map's angles (4,) [rad] for a surrogate value."""
@@ -159,17 +163,10 @@ class DLMPCController:
         period = Period(
             current=measurement[2:6],
             objective=measurement[0] / measurement[1] if measurement[1] > 0 else float('nan'),
-            surrogate=float('nan') if surrogate is None else float(surrogate),
-            previous_mode=self._last_mode)
+            surrogate=float('nan') if surrogate is None else float(surrogate))
         decision = self._decide(period)
         angles = self.config.limits.apply(period.current, decision.angles)
-        predicted_next = decision.predicted_next
-        if predicted_next is None and self.config.monitor_prediction and self.monitor.full:
-            # Outside the outer loop, keep scoring the predictor on what is applied, so the
-            # outer loop takes over again once its predictions are accurate.
-            predicted_next = self.monitor.predict_next(angles)
-        self.monitor.expect(predicted_next)
-        self._last_mode = decision.mode
+        self.monitor.expect(decision.predicted_next)
         reported = period.surrogate if decision.surrogate is None else decision.surrogate
         return ControlStep(angles=angles, mode=decision.mode, surrogate=reported,
                            prediction_error=error,

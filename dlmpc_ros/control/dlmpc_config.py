@@ -31,21 +31,6 @@ class DLMPCConfig:
     """Errors below this count as accurate (iterations grow)."""
     error_memory: int = 3
     """Recent periods whose prediction errors are averaged."""
-    apply_all: bool = False
-    """Play out the whole N-period plan before re-planning (the paper) instead of only its
-    first step."""
-    monitor_prediction: bool = False
-    """Score the predictor's one-step forecast in every mode, not only in the outer loop,
-    so that the outer loop can take over again after a spell of poor predictions."""
-    trust_radius: float | None = None
-    """Largest distance [rad] of a planned angle from the current angle (None: no limit);
-    keeps the plan where the predictor was trained, instead of where it is wrong."""
-    objective_guard: float | None = None
-    """If set: when the measured O under the outer loop falls below this fraction of the O
-    last measured under the inner loop, go back to the inner loop for ``guard_cooldown``
-    periods (the predictor's plans are trusted only while they do not lose objective)."""
-    guard_cooldown: int = 50
-    """Control periods the objective guard keeps the outer loop off."""
     acquisition: AcquisitionConfig | None = field(default_factory=AcquisitionConfig)
     """The lock acquisition scan (None: off)."""
     tracking: TrackingConfig | None = field(default_factory=TrackingConfig)
@@ -59,9 +44,5 @@ class DLMPCConfig:
             raise ValueError('need 1 <= min_iterations <= start_iterations <= max_iterations')
         if not (self.learning_rate > 0 and self.error_threshold > 0 and self.accurate_error > 0):
             raise ValueError('learning_rate, error_threshold and accurate_error must be > 0')
-        if self.trust_radius is not None and not self.trust_radius > 0:
-            raise ValueError('trust_radius must be > 0 (or None)')
-        if self.objective_guard is not None and not 0 < self.objective_guard <= 1:
-            raise ValueError('objective_guard must be in (0, 1] (or None)')
-        if self.guard_cooldown < 1 or self.error_memory < 1:
-            raise ValueError('guard_cooldown and error_memory must be >= 1')
+        if self.error_memory < 1:
+            raise ValueError('error_memory must be >= 1')

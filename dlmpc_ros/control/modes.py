@@ -46,8 +46,6 @@ class Period:
     """Measured O = E / M (NaN where M <= 0)."""
     surrogate: float
     """The estimator's K surrogate for the measurement (NaN: none)."""
-    previous_mode: str
-    """The mode that acted in the period before ('' at the start)."""
 
 
 @dataclass(frozen=True)
@@ -129,13 +127,6 @@ class PredictionMonitor:
         """(1, N + 2b, 10) the history as the model's input."""
         return torch.stack(list(self.history))[None]
 
-    def predict_next(self, angles: np.ndarray) -> torch.Tensor:
-        """The model's next normalized state (2,) if ``angles`` (4,) are held."""
-        plan = torch.as_tensor(angles, dtype=torch.float32).expand(
-            1, self.model.config.horizon, 4)
-        with torch.no_grad():
-            return self.model(self.history_batch(), plan).v[0, 0]
-
 
 class AcquireMode:
     """Scan for a pulse while the measured O says the laser is off it; where the scan
@@ -182,9 +173,9 @@ class TrackMode:
 class OuterLoop:
     """MP-RNN planning (receding horizon), while its recent forecasts were accurate.
 
-    Passes (and drops its plan) while the history is too short, the recent forecast
-    error is above ``config.error_threshold``, or the objective guard blocks it. With
-    ``config.apply_all`` a plan is played out over N periods before the next one.
+    Passes (and drops its plan) while the history is too short or the recent forecast
+    error is above ``config.error_threshold``. The predictor is scored only while it
+    plans, so once its error has passed the threshold the outer loop stays off.
     """
 
     name = 'outer'
@@ -193,36 +184,15 @@ class OuterLoop:
         self.monitor = monitor
         self.config = config
         self.plan: torch.Tensor | None = None             # (N, 4) remaining plan
-        self._queued: list[np.ndarray] = []               # apply_all: plan to play out
-        self._inner_objective: float | None = None        # O last measured after 'inner'
-        self._blocked = 0                                  # periods the guard still blocks
 
     def decide(self, period: Period) -> Decision | None:
-        blocked = self._guard(period)
-        error, threshold = self.monitor.recent_error, self.config.error_threshold
-        if self._queued and error <= threshold and not blocked:
-            return Decision(self._queued.pop(0), self.name)
-        if not self.monitor.full or error > threshold or blocked:
+        if not self.monitor.full or self.monitor.recent_error > self.config.error_threshold:
             self.stand_down()
             return None
         return self._solve(period)
 
     def stand_down(self) -> None:
-        self.plan, self._queued = None, []
-
-    def _guard(self, period: Period) -> bool:
-        """Update the objective guard with this period's O; True: outer loop blocked."""
-        fraction = self.config.objective_guard
-        if fraction is None:
-            return False
-        if self._blocked > 0:
-            self._blocked -= 1
-        if period.previous_mode == InnerLoop.name and np.isfinite(period.objective):
-            self._inner_objective = period.objective
-        elif (period.previous_mode == self.name and self._inner_objective is not None
-              and not period.objective >= fraction * self._inner_objective):
-            self._blocked = self.config.guard_cooldown
-        return self._blocked > 0
+        self.plan = None
 
     def _solve(self, period: Period) -> Decision:
         model = self.monitor.model
@@ -234,11 +204,9 @@ class OuterLoop:
             seed = torch.cat([self.plan[1:], self.plan[-1:]])       # shift the old plan
         result = solve_plan(model, PlanProblem(
             history=history, seed=seed, current=period.current,
-            iterations=self.monitor.iterations, learning_rate=self.config.learning_rate,
-            trust_radius=self.config.trust_radius), self.config.limits)
+            iterations=self.monitor.iterations, learning_rate=self.config.learning_rate),
+            self.config.limits)
         self.plan = result.plan
-        if self.config.apply_all:
-            self._queued = [u.numpy() for u in result.plan[1:]]
         return Decision(result.first, self.name, predicted_objective=result.predicted_objective,
                         iterations=result.iterations, predicted_next=result.predicted_next)
 

@@ -26,8 +26,6 @@ class PlanProblem:
     """Adam steps of the ascent."""
     learning_rate: float
     """Adam step size [rad]."""
-    trust_radius: float | None = None
-    """Largest distance of a planned angle from ``current`` [rad] (None: no limit)."""
 
 
 @dataclass(frozen=True)
@@ -55,17 +53,11 @@ def solve_plan(model: MPRNN, problem: PlanProblem, limits: AngleLimits) -> PlanR
     """
     plan = problem.seed.clone().requires_grad_(True)
     optimizer = torch.optim.Adam([plan], lr=problem.learning_rate)
-    centre = torch.as_tensor(problem.current, dtype=plan.dtype)
-    radius = problem.trust_radius
     for _ in range(problem.iterations):
         optimizer.zero_grad()
         out = model(problem.history, plan[None])
         (-out.objective.sum()).backward()
         optimizer.step()
-        if radius is not None:
-            with torch.no_grad():
-                plan.copy_(torch.maximum(torch.minimum(plan, centre + radius),
-                                         centre - radius))
     plan = plan.detach()
     plan[0] = torch.as_tensor(limits.apply(problem.current, plan[0].numpy()), dtype=plan.dtype)
     with torch.no_grad():

@@ -651,9 +651,9 @@ class CurveScan:
 
     def pass_order(self, current: np.ndarray) -> list[ScanPoint]:
         order = []
-        for i, u in enumerate(self.points):
+        for u in self.points:
             on_curve = self.tracker._on_curve(u)
-            pair = [ScanPoint(on_curve, 1, u, i), ScanPoint(on_curve + QUARTER_TURN, -1, -u, i)]
+            pair = [ScanPoint(on_curve, 1, u), ScanPoint(on_curve + QUARTER_TURN, -1, -u)]
             pair.sort(key=lambda p: float(np.max(np.abs(wrap_angles(p.angles - current)))))
             order += pair
         return order

@@ -36,11 +36,7 @@ DEFAULTS: dict[str, object] = {
     'min_iterations': _CFG.min_iterations, 'max_iterations': _CFG.max_iterations,
     'start_iterations': _CFG.start_iterations, 'learning_rate': _CFG.learning_rate,
     'error_threshold': _CFG.error_threshold, 'accurate_error': _CFG.accurate_error,
-    'apply_all': _CFG.apply_all, 'monitor_prediction': _CFG.monitor_prediction,
-    'guard_cooldown': _CFG.guard_cooldown,
 }
-#: Settings that are off when None in DLMPCConfig and off when 0.0 as parameters.
-OPTIONAL_DEFAULTS: dict[str, float] = {'trust_radius': 0.0, 'objective_guard': 0.0}
 _ACQ = AcquisitionConfig()
 ACQUISITION_DEFAULTS: dict[str, object] = {
     'acquire': True, 'lock_fraction': _ACQ.lock_fraction, 'acquire_patience': _ACQ.patience,
@@ -65,15 +61,6 @@ DESCRIPTIONS = {
     'error_threshold': 'recent one-step prediction error (normalized) above which the '
                        'VAE + map inner loop takes over',
     'accurate_error': 'prediction errors below this count as accurate (more iterations)',
-    'apply_all': 'apply the whole N-period plan before re-planning (the paper) instead of '
-                 'only its first step',
-    'monitor_prediction': 'keep scoring the predictor in the inner loop, so that the outer '
-                          'loop takes over again once its error is back under the threshold '
-                          '(off: after its first error spike the outer loop stays off)',
-    'trust_radius': 'largest distance of a planned angle from the current one [rad]; 0: none',
-    'objective_guard': 'back to the inner loop when O under the outer loop falls below this '
-                       'fraction of the O under the inner loop; 0: off',
-    'guard_cooldown': 'control periods the objective guard keeps the outer loop off',
     'acquire': 'scan the map for mode-locking while the measured O says the laser is off '
                'its pulse',
     'lock_fraction': 'locked when O >= this x the mean O of the map training targets',
@@ -105,8 +92,7 @@ RANGES: dict[str, tuple[float, float]] = {
     'min_iterations': (1, 10_000), 'max_iterations': (1, 10_000),
     'start_iterations': (1, 10_000), 'learning_rate': (1e-9, 10.0),
     'error_threshold': (1e-12, 1e6), 'accurate_error': (1e-12, 1e6),
-    'trust_radius': (0.0, 1e3), 'objective_guard': (0.0, 1.0),
-    'guard_cooldown': (1, 1_000_000), 'lock_fraction': (1e-6, 0.999999),
+    'lock_fraction': (1e-6, 0.999999),
     'acquire_patience': (1, 1_000_000), 'acquire_relock_patience': (1, 1_000_000),
     'acquire_dwell': (1, 1_000_000),
     'track_dither': (1e-9, 1.0), 'track_step': (_TRK.min_step, _TRK.max_step),
@@ -121,7 +107,7 @@ class MPCControllerNode(ControllerNodeBase):
 
     def __init__(self) -> None:
         super().__init__('mpc_controller',
-                         {**DEFAULTS, **OPTIONAL_DEFAULTS, **ACQUISITION_DEFAULTS,
+                         {**DEFAULTS, **ACQUISITION_DEFAULTS,
                           **TRACKING_DEFAULTS, **PLANNER_DEFAULTS}, DESCRIPTIONS, RANGES)
         v = self.values
         try:
@@ -139,8 +125,7 @@ class MPCControllerNode(ControllerNodeBase):
                 online=v['plan_online'], explore=v['plan_explore']) if v['plan'] else None
             config = DLMPCConfig(limits=self.limits, acquisition=acquisition, tracking=tracking,
                                  planner=planner,
-                                 **{name: v[name] for name in DEFAULTS},
-                                 **{name: v[name] or None for name in OPTIONAL_DEFAULTS})
+                                 **{name: v[name] for name in DEFAULTS})
         except (ValueError, TypeError) as err:
             raise params.StartupError(str(err)) from None
         # torch (about 1 s of CPU) loads after the node's DDS participant exists, so that

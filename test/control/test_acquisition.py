@@ -90,7 +90,7 @@ def test_a_point_the_servos_cannot_reach_is_left_after_travel_periods():
 @pytest.mark.parametrize('bad', [{'lock_fraction': 0.0}, {'lock_fraction': 1.0},
                                  {'patience': 0}, {'dwell_periods': 0}, {'scan_points': 0},
                                  {'level_window': 0}, {'confirm_periods': 0},
-                                 {'compare_periods': 0}, {'turn_room': -1.0},
+                                 {'turn_room': -1.0},
                                  {'curve_points': ()}, {'curve_points': (0.1, np.nan)}])
 def test_bad_acquisition_settings_are_rejected(bad):
     with pytest.raises(ValueError):
@@ -156,46 +156,12 @@ class _Pairs:
         pass
 
 
-_CURVE = ScanPoint(np.zeros(4), 1, -0.25, 0)
-_TWIN = ScanPoint(np.full(4, 0.5), -1, 0.25, 0)
-_NEXT = ScanPoint(np.full(4, 1.0), 1, -0.3, 1)
+_CURVE = ScanPoint(np.zeros(4), 1, -0.25)
+_TWIN = ScanPoint(np.full(4, 0.5), -1, 0.25)
 
 
-def _scan_locked_at_curve_point(twin_objective: float) -> tuple[LockSupervisor, list]:
-    """Scan, lock at the curve point (O 0.2), hold it, try its twin (O ``twin_objective``);
-    the commands of each period."""
-    sup = LockSupervisor(0.1, _Pairs(_CURVE, _TWIN, _NEXT),
-                         AcquisitionConfig(patience=1, dwell_periods=2, compare_twins=True,
-                                           compare_periods=2))
-    here = np.full(4, -1.0)
-    sup.step(0.01, here, 0.0)
-    commands = [sup.step(0.01, here, 0.0)]                    # scanning: the curve point
-    commands.append(sup.step(0.2, _CURVE.angles, 0.0))        # locked: hold it
-    commands.append(sup.step(0.2, _CURVE.angles, 0.0))        # held: now its twin
-    commands.append(sup.step(0.0, _CURVE.angles, 0.0))        # on the way
-    commands.append(sup.step(twin_objective, _TWIN.angles, 0.0))  # there
-    commands.append(sup.step(twin_objective, _TWIN.angles, 0.0))  # judged
-    return sup, commands
-
-
-def test_the_scan_compares_a_locked_point_with_its_twin_and_keeps_the_better():
-    sup, commands = _scan_locked_at_curve_point(0.3)
-    for command, point in zip(commands, (_CURVE, _CURVE, _TWIN, _TWIN, _TWIN)):
-        np.testing.assert_allclose(command, point.angles)
-    assert commands[-1] is None and sup.locked_at is _TWIN and sup.unlocked == 0
-
-
-def test_a_weaker_twin_sends_the_scan_back_to_the_point_that_locked():
-    sup, commands = _scan_locked_at_curve_point(0.15)         # locked, but weaker
-    np.testing.assert_allclose(commands[-1], _CURVE.angles)   # back
-    assert sup.locked_at is None
-    # still at the twin (O over the level): not handed over until the servos are back
-    np.testing.assert_allclose(sup.step(0.15, _TWIN.angles, 0.0), _CURVE.angles)
-    assert sup.step(0.2, _CURVE.angles, 0.0) is None and sup.locked_at is _CURVE
-
-
-def test_without_comparison_the_scan_lets_go_at_the_first_point_that_locks():
-    """The default: the tracker's entry trial turns the laser onto the twin instead."""
+def test_the_scan_lets_go_at_the_first_point_that_locks():
+    """Even on the weaker branch: the tracker's entry trial turns the laser onto the twin."""
     sup = LockSupervisor(0.1, _Pairs(_CURVE, _TWIN), AcquisitionConfig(patience=1))
     sup.step(0.01, np.full(4, -1.0), 0.0)
     sup.step(0.01, np.full(4, -1.0), 0.0)
