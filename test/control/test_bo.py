@@ -48,7 +48,7 @@ def test_bo_climbs_a_periodic_objective_within_the_limits_and_holds_it():
     assert ((commands >= limits.low - 1e-12) & (commands <= limits.high + 1e-12)).all()
     assert np.abs(np.diff(commands, axis=0)).max() <= limits.max_step + 1e-12
     locked = np.flatnonzero(seen >= 0.1)
-    # within a few dozen periods from ~0.003 (seeds 0-11: 24-73 periods, median 43)
+    # within a few dozen periods from ~0.003 (seeds 0-11: 16-60 periods, median 28)
     assert locked.size and locked[0] < 50
     assert bo.holding and bo.choices >= BOConfig().initial
     assert seen[-10:].min() >= 0.1  # it holds what it found

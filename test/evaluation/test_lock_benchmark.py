@@ -66,28 +66,28 @@ def test_a_task_runs_the_dl_mpc_with_the_settings_it_is_given():
 
 
 def test_a_budget_sweep_scores_each_budget_as_a_run_of_that_budget_would():
-    """Starts 1 and 2 of the BO lock at round trips 384 and 265 (a hold of 50): run once at
-    600, each smaller budget derived from the times to lock is what a run of that budget
-    finds, to the round trip (434 = 384 + 50 holds start 1's lock, 433 does not)."""
+    """fixed_best locks starts 8, 4 and 0 at round trips 47, 57 and 63 (a hold of 50): run
+    once at 200, each smaller budget derived from the times to lock is what a run of that
+    budget finds, to the round trip (113 = 63 + 50 holds start 0's lock, 112 does not)."""
     tables = load_baselines(models_dir() / 'oracle.npz')
 
     def run(budget: int) -> list[dict]:
-        spec = LockSpec('bo', starts=2, budget=budget, hold_periods=5)
-        return run_starts(LockTask(spec, (1, 2), str(models_dir()), tables['K'],
+        spec = LockSpec('fixed_best', starts=3, budget=budget, hold_periods=5)
+        return run_starts(LockTask(spec, (8, 4, 0), str(models_dir()), tables['K'],
                                    tables['O_star']))
 
-    spec = LockSpec('bo', starts=2, budget=600, hold_periods=5)
-    longest = run(600)
-    assert [s['round_trips'] for s in longest] == [384, 265]
-    for budget in (300, 433, 434):
+    spec = LockSpec('fixed_best', starts=3, budget=200, hold_periods=5)
+    longest = run(200)
+    assert [s['round_trips'] for s in longest] == [47, 57, 63]
+    for budget in (96, 100, 112, 113):
         assert within_budget(longest, budget, spec) == run(budget), budget
-    sweep = sweep_metrics(longest, spec, [600, 300, 434])
-    assert list(sweep) == ['300', '434', '600']
-    assert [sweep[b]['locked'] for b in sweep] == [0, 2, 2]
-    assert sweep['434']['median_control_periods'] == pytest.approx(32.45)
-    assert sweep['600']['p90_control_periods'] == 38.4
+    sweep = sweep_metrics(longest, spec, [200, 100, 112])
+    assert list(sweep) == ['100', '112', '200']
+    assert [sweep[b]['locked'] for b in sweep] == [1, 2, 3]
+    assert sweep['112']['median_round_trips'] == 52 and sweep['112']['p90_round_trips'] is None
+    assert sweep['200']['p90_control_periods'] == 6.3
     with pytest.raises(ValueError, match='budget'):
-        within_budget(longest, 601, spec)
+        within_budget(longest, 201, spec)
 
 
 def test_dlmpc_evaluate_sweeps_budgets_with_the_smallest_as_the_headline(tmp_path):
