@@ -89,13 +89,7 @@ class AcquisitionConfig:
     mirror twin, in this order (from the simulator: c(-0.25) starts a pulse from noise at
     every K it was tried at)."""
 
-    home: str = 'off'
-    """EXPERIMENT (bench): 'first': a relock pass starts at the best angles measured in the
-    last ``HOME_WINDOW`` locked periods; 'now': go there at once when the lock is lost."""
-
     def __post_init__(self) -> None:
-        if self.home not in ('off', 'first', 'now'):
-            raise ValueError(f"home must be 'off', 'first' or 'now', got {self.home!r}")
         if not 0 < self.lock_fraction < 1:
             raise ValueError(f'lock_fraction must be in (0, 1), got {self.lock_fraction}')
         if min(self.patience, self.relock_patience, self.dwell_periods, self.scan_points,
@@ -159,10 +153,6 @@ class MapScan:
             self.last_surrogate = float(surrogate)
 
 
-#: Locked periods whose best measured angles are the scan's home after a loss.
-HOME_WINDOW = 20
-
-
 class LockSupervisor:
     """Per control period: None while the DL-MPC loops are in charge, else the angles
     (4,) [rad] of the scan.
@@ -175,14 +165,9 @@ class LockSupervisor:
 
     def __init__(self, threshold: float, source: ScanSource,
                  config: AcquisitionConfig | None = None,
-                 limits: AngleLimits | None = None,
-                 position: Callable[[], tuple[int, float]] | None = None) -> None:
+                 limits: AngleLimits | None = None) -> None:
         if not threshold > 0:
             raise ValueError(f'lock threshold must be > 0, got {threshold}')
-        self.position = position
-        #: (O, point) of the latest locked periods; the best is where a relock starts
-        self._homes: deque[tuple[float, ScanPoint]] = deque(maxlen=HOME_WINDOW)
-        self._home_pending = False
         self.config = config or AcquisitionConfig()
         self.threshold = float(threshold)
         self.source = source
@@ -215,11 +200,6 @@ class LockSupervisor:
             # over the level while scanning: hold course until it has lasted
             return self._toward(np.asarray(current, float))
         if locked:
-            if self._target is None and self.config.home != 'off':
-                branch, estimate = self.position() if self.position else (0, float('nan'))
-                self._homes.append((float(objective), ScanPoint(
-                    np.array(current, float), branch, estimate)))
-            self._home_pending = True
             self.was_locked = True
             self.source.note_locked(surrogate)
             self.locked_at = self._target
@@ -228,8 +208,6 @@ class LockSupervisor:
             return None
         self.unlocked += 1
         cfg = self.config
-        if cfg.home == 'now' and self.unlocked == 1 and self._homes and self._home_pending:
-            return self._scan(np.asarray(current, float))
         if self.unlocked <= (cfg.relock_patience if self.was_locked else cfg.patience):
             return None
         return self._scan(np.asarray(current, float))
@@ -268,9 +246,6 @@ class LockSupervisor:
                 return self._toward(current)
         if not self._order:
             self._order = self.source.pass_order(current)
-            if self._home_pending and self._homes:
-                self._order.insert(0, max(self._homes, key=lambda seen: seen[0])[1])
-            self._home_pending = False
         self._target = self._order.pop(0)
         self._dwell = self._travel = 0
         return self._toward(current)

@@ -110,9 +110,8 @@ class DLMPCController:
             source = (MapScan(self.map_angles, cfg.acquisition.scan_points)
                       if self.tracker is None else
                       CurveScan(self.tracker, cfg.acquisition.curve_points))
-            self.acquisition = LockSupervisor(
-                lock_fraction * target_objective, source, cfg.acquisition, cfg.limits,
-                position=None if self.tracker is None else self._tracked_position)
+            self.acquisition = LockSupervisor(lock_fraction * target_objective, source,
+                                              cfg.acquisition, cfg.limits)
         self.monitor = PredictionMonitor(mprnn, cfg)
         self.outer = OuterLoop(self.monitor, cfg)
         self.modes: list[Mode] = [
@@ -126,13 +125,6 @@ class DLMPCController:
         return DLMPCController(self.kmap, self.model, self.config, self.target_objective,
                                self.curve, self.response, self.rotation_prior,
                                self.turn_correction)
-
-    def _tracked_position(self) -> tuple[int, float]:
-        """Where the tracker holds the laser: (branch, estimate), or (0, NaN) when it does
-        not track."""
-        if self.tracker is None or not self.tracker.active:
-            return 0, float('nan')
-        return self.tracker.branch, self.tracker.estimate
 
     def map_angles(self, surrogate: float) -> np.ndarray:
         """The map's angles (4,) [rad] for a surrogate value."""
