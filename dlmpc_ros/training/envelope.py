@@ -17,6 +17,16 @@ searched on fewer K points from the nominal tables' angles and their mirrors, in
 instead of the sweep's quarter of an hour, and cached by the plant's fingerprint
 (:func:`cached_plant_envelope`). :func:`draw_plant` draws a family's plants, redrawing
 one that does not mode-lock at every K.
+
+That search starts every K from the nominal tables alone, so it can miss a plant's optimum
+where the plant's best branch lies away from the nominal angles (family-2 lost up to 15 %
+at |K| >= 0.15). :func:`continue_envelope` adds a continuation layer in K on top of it:
+each K tries the final angles of its neighbouring K points and the mirrors of those at -K
+(from the spec's pulse and warm from their fields), refines a start that beats O*(K) by
+the compass search, and sweeps until no K point moves; it only raises O*(K) and keeps it
+symmetric. :func:`cached_plant_envelope`, which every caller uses, returns the continued
+envelope, cached apart from the base (:class:`ContinuationConfig` names its key), so
+the base envelopes already cached stay valid.
 """
 
 from __future__ import annotations
@@ -31,16 +41,16 @@ from pathlib import Path
 import numpy as np
 
 from dlmpc_ros.core import checks
-from dlmpc_ros.core.angles import wrap_angles
+from dlmpc_ros.core.angles import angle_distance, wrap_angles
 from dlmpc_ros.core.cavity import Cavity
 from dlmpc_ros.core.config import BIREFRINGENCE_RANGE, CavityConfig
 from dlmpc_ros.core.plants import PlantFamily, plant_fingerprint, plant_parameters
 from dlmpc_ros.core.steady import run_to_steady
-from dlmpc_ros.core.symmetry import mirror_angles
+from dlmpc_ros.core.symmetry import mirror_angles, mirror_fields
 from dlmpc_ros.learning.tables import read_npz, write_npz
 from dlmpc_ros.scaleout import TaskFailure, run_tasks
 from dlmpc_ros.training import shards
-from dlmpc_ros.training.search import compass_search, steady_scores
+from dlmpc_ros.training.search import MIN_GAIN, compass_search, steady_scores
 
 
 @dataclass(frozen=True)
@@ -315,6 +325,161 @@ def plant_envelope(cavity_cfg: CavityConfig, tables: dict[str, np.ndarray],
     return envelope
 
 
+# -- continuation in K over a plant's envelope -----------------------------------------------
+
+@dataclass(frozen=True)
+class ContinuationConfig:
+    """Settings of the continuation layer over a plant's envelope (:func:`continue_envelope`;
+    its compass search takes its steps, iterations, cap and chunk from the
+    :class:`PlantEnvelopeConfig`). ``max_sweeps=0`` leaves the envelope as it is."""
+
+    max_sweeps: int = 10
+    """Sweeps at most; it stops earlier after a sweep that moves no K point. A better
+    branch spreads one grid step each way per sweep and the mirror brings it to -K at
+    once, so 10 sweeps carry it from any K to every K of the 21-point grid."""
+    reach: int = 1
+    """Grid points on each side of K (and of -K, mirrored) whose angles start at K."""
+    warm: bool = True
+    """Also run each start from its source's steady field (following the source's branch
+    to K, as a laser tracking a drifting K does), not only from the spec's pulse."""
+    margin: float = 0.0
+    """A start is refined when its steady O exceeds (1 - margin) O*(K) (0: only a start
+    that beats O*(K) already)."""
+
+    def __post_init__(self) -> None:
+        checks.counts(self, 'max_sweeps', minimum=0)
+        checks.counts(self, 'reach')
+        checks.non_negative(self, 'margin')
+        if not isinstance(self.warm, bool):
+            raise ValueError(f'ContinuationConfig.warm must be a bool, got {self.warm!r}')
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _symmetrize(o: np.ndarray, angles: np.ndarray, u: np.ndarray, v: np.ndarray) -> None:
+    """In place: at each K the better of its state and the mirror of the state at -K."""
+    use = o[::-1] > o
+    if use.any():
+        twin_a = wrap_angles(mirror_angles(angles[::-1]))
+        twin_u, twin_v = mirror_fields(u[::-1], v[::-1])
+        o[use] = o[::-1][use]
+        angles[use], u[use], v[use] = twin_a[use], twin_u[use], twin_v[use]
+
+
+def continue_envelope(cavity_cfg: CavityConfig, envelope: dict[str, np.ndarray],
+                      cfg: PlantEnvelopeConfig | None = None,
+                      continuation: ContinuationConfig | None = None, progress=None
+                      ) -> dict[str, np.ndarray]:
+    """The envelope improved by continuation in K (never lowered: a K point moves only to
+    a better steady state, and the result is symmetric).
+
+    The current angles at every K are first run from the spec's pulse (their fields start
+    the warm runs; a better O there is kept). Each sweep then tries, at each K, the angles
+    of the ``reach`` grid points on either side and the mirrors of those at -K and its
+    neighbours, from the spec's pulse and (``warm``) from the source's field turned with
+    it, all K points in one batch. Where the best start beats O*(K) (less ``margin``) it
+    is refined by :func:`compass_search` and kept if it beats O*(K); then each K takes the
+    better of itself and the mirror of -K. A sweep uses both neighbours at once, so a
+    better branch spreads one grid step each way per sweep; the next sweep retries only
+    the K points next to one that moved, and the sweeps stop when none moved or after
+    ``max_sweeps``.
+
+    Returns the envelope's arrays with ``O_star`` and ``angles`` replaced, plus
+    ``O_star_base`` and ``angles_base`` (the input), ``moved_in_sweep`` (n_k,) (the last
+    sweep that raised the point, 0: never; -1: the re-run of its own angles) and, per
+    sweep, ``sweep_starts``, ``sweep_refined`` and ``sweep_moved``; the input's other
+    arrays (``O_star_own``, ``from_mirror``, ``start_O``, ...) describe the base search."""
+    cfg = cfg or PlantEnvelopeConfig()
+    continuation = continuation or ContinuationConfig()
+    k = np.asarray(envelope['K'], float)
+    n = k.size
+    if not np.allclose(k, -k[::-1], atol=1e-12):
+        raise ValueError('continuation needs a K grid symmetric about 0')
+    base_o = np.asarray(envelope['O_star'], float)
+    base_angles = np.asarray(envelope['angles'], float)
+    o, angles = base_o.copy(), wrap_angles(base_angles)
+    moved_in = np.zeros(n, int)
+    starts, refined, moved = [], [], []
+    if continuation.max_sweeps > 0:
+        score, (u, v) = steady_scores(cavity_cfg, angles, k, cap=2 * cfg.cap, chunk=cfg.chunk)
+        better = score > o + MIN_GAIN
+        o[better] = score[better]
+        moved_in[better] = -1
+        _symmetrize(o, angles, u, v)
+        moved_in[(o > base_o) & (moved_in == 0)] = -1
+    active = np.ones(n, bool)
+    reach = continuation.reach
+    for sweep in range(1, continuation.max_sweeps + 1):
+        lanes, cand_a, cand_u, cand_v, warm = [], [], [], [], []
+        for i in np.flatnonzero(active):
+            sources = [(j, False) for d in range(1, reach + 1) for j in (i - d, i + d)]
+            sources += [(n - 1 - i + d, True) for d in range(-reach, reach + 1)]
+            tried = [angles[i]]
+            for j, mirror in sources:
+                if not 0 <= j < n:
+                    continue
+                a = wrap_angles(mirror_angles(angles[j])) if mirror else angles[j]
+                if min(angle_distance(a, b) for b in tried) < 1e-9:
+                    continue    # the same angles: the same starts
+                tried.append(a)
+                fu, fv = mirror_fields(u[j], v[j]) if mirror else (u[j], v[j])
+                for w in ((False, True) if continuation.warm else (False,)):
+                    lanes.append(i)
+                    cand_a.append(a)
+                    cand_u.append(fu)
+                    cand_v.append(fv)
+                    warm.append(w)
+        starts.append(len(lanes))
+        if not lanes:
+            refined.append(0)
+            moved.append(0)
+            break
+        lanes, warm = np.array(lanes), np.array(warm)
+        cavity = Cavity(cavity_cfg, batch=lanes.size, angles=np.array(cand_a),
+                        birefringence=k[lanes])
+        if warm.any():
+            cavity.set_fields(np.array(cand_u)[warm], np.array(cand_v)[warm],
+                              index=np.flatnonzero(warm))
+        result = run_to_steady(cavity, 2 * cfg.cap, cfg.chunk)
+        score = np.where(result.converged & result.finite, result.O, -np.inf)
+        fu, fv = cavity.fields()
+        # The best start per K point; refine those that beat O*(K) (less the margin).
+        best = {}
+        for row, lane in enumerate(lanes):
+            if lane not in best or score[row] > score[best[lane]]:
+                best[lane] = row
+        bar = o * (1 - continuation.margin) if continuation.margin else o + MIN_GAIN
+        picks = [(lane, row) for lane, row in best.items() if score[row] > bar[lane]]
+        refined.append(len(picks))
+        before = o.copy()
+        if picks:
+            at, rows = (np.array(x) for x in zip(*picks))
+            found = compass_search(np.array(cand_a)[rows], k[at], score[rows],
+                                   (fu[rows], fv[rows]), cavity_cfg,
+                                   first_step=cfg.first_step, min_step=cfg.min_step,
+                                   max_iterations=cfg.max_iterations, cap=cfg.cap,
+                                   chunk=cfg.chunk, wrap=True, progress=progress)
+            gain = found.objective > o[at] + MIN_GAIN
+            at = at[gain]
+            o[at], angles[at] = found.objective[gain], found.angles[gain]
+            u[at], v[at] = found.u[gain], found.v[gain]
+            _symmetrize(o, angles, u, v)
+        up = o > before
+        moved.append(int(up.sum()))
+        moved_in[up] = sweep
+        if not up.any():
+            break
+        near = np.convolve(up.astype(int), np.ones(2 * reach + 1, int), 'same') > 0
+        active = near | near[::-1]
+    out = {**envelope, 'O_star': o, 'angles': angles, 'O_star_base': base_o,
+           'angles_base': base_angles, 'moved_in_sweep': moved_in,
+           'sweep_starts': np.array(starts, int), 'sweep_refined': np.array(refined, int),
+           'sweep_moved': np.array(moved, int)}
+    check_symmetric(out)
+    return out
+
+
 # -- the cache of plant envelopes and family draws ------------------------------------------
 
 def cache_dir() -> Path:
@@ -336,25 +501,82 @@ def _settings_key(cfg: PlantEnvelopeConfig, tables: dict[str, np.ndarray]) -> st
     return digest.hexdigest()[:8]
 
 
+def _continuation_key(continuation: ContinuationConfig) -> str:
+    """The continuation layer's settings, as a short key."""
+    text = json.dumps(continuation.to_dict(), sort_keys=True).encode()
+    return hashlib.sha256(text).hexdigest()[:8]
+
+
+def envelope_paths(cavity_cfg: CavityConfig, tables: dict[str, np.ndarray],
+                   cfg: PlantEnvelopeConfig | None = None,
+                   continuation: ContinuationConfig | None = None,
+                   directory: Path | None = None) -> tuple[Path, Path]:
+    """Where :func:`cached_plant_envelope` keeps the plant's base envelope and its
+    continued envelope."""
+    directory = Path(directory or cache_dir()) / 'envelopes'
+    settings = _settings_key(cfg or PlantEnvelopeConfig(), tables)
+    stem = f'{plant_fingerprint(cavity_cfg)}-{settings}'
+    key = _continuation_key(continuation or ContinuationConfig())
+    return directory / f'{stem}.npz', directory / 'continued' / f'{stem}-{key}.npz'
+
+
+def continuation_note(envelope: dict[str, np.ndarray]) -> dict:
+    """The K points that :func:`continue_envelope` raised, how much and in which sweep,
+    and what each sweep did (for the cache's .json note)."""
+    base, o = envelope['O_star_base'], envelope['O_star']
+    moved = np.flatnonzero(o > base)
+    return {
+        'mean_O_star_base': float(base.mean()), 'mean_O_star': float(o.mean()),
+        'mean_ratio': float(np.mean(o / base)), 'k_points_moved': int(moved.size),
+        'moved': [{'K': round(float(envelope['K'][i]), 12), 'O_star_base': float(base[i]),
+                   'O_star': float(o[i]), 'ratio': float(o[i] / base[i]),
+                   'sweep': int(envelope['moved_in_sweep'][i])} for i in moved],
+        'sweeps': [{'starts': int(a), 'refined': int(b), 'moved': int(c)} for a, b, c in
+                   zip(envelope['sweep_starts'], envelope['sweep_refined'],
+                       envelope['sweep_moved'])],
+    }
+
+
 def cached_plant_envelope(cavity_cfg: CavityConfig, tables: dict[str, np.ndarray],
                           cfg: PlantEnvelopeConfig | None = None,
-                          directory: Path | None = None, progress=None
+                          directory: Path | None = None, progress=None,
+                          continuation: ContinuationConfig | None = None
                           ) -> dict[str, np.ndarray]:
-    """:func:`plant_envelope`, read from the cache when it was computed before for this
-    plant, these settings and these tables; else computed and cached (``.npz`` with a
-    ``.json`` note of the plant and the wall time)."""
+    """The plant's envelope, continued in K: :func:`plant_envelope` (the base), then
+    :func:`continue_envelope` with ``continuation`` (default :class:`ContinuationConfig`;
+    ``max_sweeps=0``: the base alone). Each is read from the cache when it was computed
+    before for this plant, these settings and these tables; else computed and cached
+    (``.npz`` with a ``.json`` note of the plant and the wall time): the base as
+    ``envelopes/<plant>-<settings>.npz``, the continued envelope as
+    ``envelopes/continued/<plant>-<settings>-<continuation>.npz``, its note listing the
+    K points that moved."""
     cfg = cfg or PlantEnvelopeConfig()
-    directory = Path(directory or cache_dir()) / 'envelopes'
-    path = directory / f'{plant_fingerprint(cavity_cfg)}-{_settings_key(cfg, tables)}.npz'
+    continuation = continuation or ContinuationConfig()
+    path, continued = envelope_paths(cavity_cfg, tables, cfg, continuation, directory)
+    if continuation.max_sweeps and continued.is_file():
+        return read_npz(continued, 'cached continued plant envelope',
+                        f'delete {continued} to recompute it')
     if path.is_file():
-        return read_npz(path, 'cached plant envelope', f'delete {path} to recompute it')
+        envelope = read_npz(path, 'cached plant envelope', f'delete {path} to recompute it')
+    else:
+        started = time.monotonic()
+        envelope = plant_envelope(cavity_cfg, tables, cfg, progress)
+        write_npz(path, envelope, {'plant': plant_parameters(cavity_cfg),
+                                   'plant_fingerprint': plant_fingerprint(cavity_cfg),
+                                   'settings': cfg.to_dict(),
+                                   'wall_seconds': round(time.monotonic() - started, 1),
+                                   'mean_O_star': float(envelope['O_star'].mean())})
+    if not continuation.max_sweeps:
+        return envelope
     started = time.monotonic()
-    envelope = plant_envelope(cavity_cfg, tables, cfg, progress)
-    write_npz(path, envelope, {'plant': plant_parameters(cavity_cfg),
-                               'plant_fingerprint': plant_fingerprint(cavity_cfg),
-                               'settings': cfg.to_dict(),
-                               'wall_seconds': round(time.monotonic() - started, 1),
-                               'mean_O_star': float(envelope['O_star'].mean())})
+    envelope = continue_envelope(cavity_cfg, envelope, cfg, continuation, progress)
+    write_npz(continued, envelope, {'plant': plant_parameters(cavity_cfg),
+                                    'plant_fingerprint': plant_fingerprint(cavity_cfg),
+                                    'settings': cfg.to_dict(),
+                                    'continuation': continuation.to_dict(),
+                                    'base': path.name,
+                                    'wall_seconds': round(time.monotonic() - started, 1),
+                                    **continuation_note(envelope)})
     return envelope
 
 
@@ -417,7 +639,7 @@ def draw_task(task: PlantTask) -> dict:
 
 
 def envelope_task(task: PlantTask) -> dict[str, np.ndarray]:
-    """The (cached) envelope of ``task.plant``."""
+    """The (cached) continued envelope of ``task.plant`` (:func:`cached_plant_envelope`)."""
     from dlmpc_ros.core.plants import NOMINAL
     from dlmpc_ros.learning.tables import load_baselines
     cavity = replace(NOMINAL, **(task.plant or {}))
