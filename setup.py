@@ -58,7 +58,8 @@ setup(
         # controllers by name (docs/controllers.md): any installed package may add its own
         f'{PACKAGE}.controllers': [
             f'{name} = {PACKAGE}.control.factory:{name}'
-            for name in ('dlmpc', 'esc', 'ga', 'passive', 'fixed_best', 'oracle', 'bo')
+            for name in ('dlmpc', 'dlmpc_paper', 'esc', 'ga', 'passive', 'fixed_best',
+                         'oracle', 'bo')
         ],
     },
 )

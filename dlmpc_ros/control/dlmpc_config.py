@@ -39,6 +39,13 @@ class DLMPCConfig:
     """Planning turns of the tracking curve with the steady-response predictor (None:
     off; also off without tracking or without the predictor)."""
 
+    @classmethod
+    def paper(cls, **settings) -> DLMPCConfig:
+        """The paper's DL-MPC (section 3D) and nothing else: the VAE surrogate through the
+        K-to-angles map (inner loop) and the MP-RNN's horizon-N plans (outer loop); no
+        lock acquisition scan, curve tracking or planned turns."""
+        return cls(acquisition=None, tracking=None, planner=None, **settings)
+
     def __post_init__(self) -> None:
         if not 1 <= self.min_iterations <= self.start_iterations <= self.max_iterations:
             raise ValueError('need 1 <= min_iterations <= start_iterations <= max_iterations')

@@ -110,6 +110,12 @@ def dlmpc(models_dir: Path, limits: AngleLimits, *,
     return load_dlmpc(models_dir, replace(dlmpc_config or DLMPCConfig(), limits=limits))
 
 
+def dlmpc_paper(models_dir: Path, limits: AngleLimits) -> DLMPCController:
+    """The paper's DL-MPC alone (:meth:`DLMPCConfig.paper`: VAE + map inner loop, MP-RNN
+    outer loop) within ``limits``: the mpc_controller node's ``strategy:=paper``."""
+    return load_dlmpc(models_dir, DLMPCConfig.paper(limits=limits))
+
+
 def esc(models_dir: Path, limits: AngleLimits) -> ESCController:
     """Extremum seeking (no model file)."""
     return ESCController(limits=limits)

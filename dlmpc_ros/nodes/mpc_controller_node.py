@@ -37,6 +37,8 @@ DEFAULTS: dict[str, object] = {
     'start_iterations': _CFG.start_iterations, 'learning_rate': _CFG.learning_rate,
     'error_threshold': _CFG.error_threshold, 'accurate_error': _CFG.accurate_error,
 }
+#: ``dlmpc``: the shipped controller; ``paper``: the paper's loops alone.
+STRATEGIES = ('dlmpc', 'paper')
 _ACQ = AcquisitionConfig()
 ACQUISITION_DEFAULTS: dict[str, object] = {
     'acquire': True, 'lock_fraction': _ACQ.lock_fraction, 'acquire_patience': _ACQ.patience,
@@ -54,6 +56,10 @@ PLANNER_DEFAULTS: dict[str, object] = {
     'plan_online': _PLN.online, 'plan_explore': _PLN.explore,
 }
 DESCRIPTIONS = {
+    'strategy': f'one of {STRATEGIES}: dlmpc, the shipped controller (lock acquisition, '
+                'curve tracking, planned turns, with the paper\'s loops under them); paper, '
+                'the paper\'s DL-MPC alone (VAE + map inner loop, MP-RNN outer loop; the '
+                'acquire, track and plan parameters are then ignored)',
     'min_iterations': 'fewest gradient-ascent iterations per plan',
     'max_iterations': 'most gradient-ascent iterations per plan',
     'start_iterations': 'iterations of the first plan',
@@ -107,22 +113,27 @@ class MPCControllerNode(ControllerNodeBase):
 
     def __init__(self) -> None:
         super().__init__('mpc_controller',
-                         {**DEFAULTS, **ACQUISITION_DEFAULTS,
+                         {'strategy': 'dlmpc', **DEFAULTS, **ACQUISITION_DEFAULTS,
                           **TRACKING_DEFAULTS, **PLANNER_DEFAULTS}, DESCRIPTIONS, RANGES)
         v = self.values
+        if v['strategy'] not in STRATEGIES:
+            raise params.StartupError(f"strategy = {v['strategy']!r} is not one of "
+                                      f'{STRATEGIES}')
+        paper = v['strategy'] == 'paper'
         try:
             acquisition = AcquisitionConfig(
                 lock_fraction=v['lock_fraction'], patience=v['acquire_patience'],
                 relock_patience=v['acquire_relock_patience'],
-                dwell_periods=v['acquire_dwell']) if v['acquire'] else None
+                dwell_periods=v['acquire_dwell']) if v['acquire'] and not paper else None
             tracking = TrackingConfig(dither=v['track_dither'], step=v['track_step'],
                                       guard=v['track_guard'],
                                       noise_deadband=v['track_noise_deadband']
-                                      ) if v['track'] else None
+                                      ) if v['track'] and not paper else None
             planner = PlannerConfig(
                 radius=v['plan_radius'], spread_penalty=v['plan_spread_penalty'],
                 noise_gate=v['plan_noise_gate'],
-                online=v['plan_online'], explore=v['plan_explore']) if v['plan'] else None
+                online=v['plan_online'], explore=v['plan_explore']
+            ) if v['plan'] and not paper else None
             config = DLMPCConfig(limits=self.limits, acquisition=acquisition, tracking=tracking,
                                  planner=planner,
                                  **{name: v[name] for name in DEFAULTS})

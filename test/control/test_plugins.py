@@ -36,6 +36,12 @@ def test_the_built_in_controllers_are_registered_like_any_other():
     assert build('fixed_best', models_dir()).name == 'fixed_best'
 
 
+def test_the_paper_s_dl_mpc_is_a_registered_controller_without_the_added_parts():
+    paper = build('dlmpc_paper', models_dir(), AngleLimits())
+    assert paper.acquisition is None and paper.tracker is None and paper.planner is None
+    assert [mode.name for mode in paper.modes] == ['outer', 'inner', 'hold']
+
+
 def test_an_installed_package_registers_a_name(tmp_path, monkeypatch):
     example = 'dlmpc_ros.examples.hill_climber:make'
     monkeypatch.syspath_prepend(str(install(tmp_path, 'mylab', {'mylab_hill': example})))
