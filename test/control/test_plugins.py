@@ -66,7 +66,7 @@ def test_a_factory_gets_only_the_settings_it_names():
 
 
 @pytest.mark.parametrize('spec, words', [
-    ('teleport', ["unknown controller 'teleport'", 'registered are bo, dlmpc, esc',
+    ('teleport', ["unknown controller 'teleport'", 'registered are bo, dlmpc, ',
                   'package.module:factory']),
     ('test.control.no_such_module:make', ["cannot import 'test.control.no_such_module'",
                                           'ModuleNotFoundError']),
