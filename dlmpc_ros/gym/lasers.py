@@ -25,6 +25,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from dlmpc_ros.control.observation import (E_BOUNDS, M_BOUNDS, MEASUREMENT, MeasurementWindow,
+                                           delta_commands)
+from dlmpc_ros.control.observation import observation_bounds as window_bounds
 from dlmpc_ros.core.bench import Servos, quantize
 from dlmpc_ros.core.cavity import Cavity, initial_field
 from dlmpc_ros.core.config import CavityConfig
@@ -32,11 +35,10 @@ from dlmpc_ros.core.grid import Grid
 from dlmpc_ros.core.plants import plant_parameters
 from dlmpc_ros.gym.config import SOLVER_FIELDS, LaserEnvConfig, checked_envelope
 
-#: Columns of a measurement: E, M and the four angles [rad].
-MEASUREMENT = ('E', 'M', 'alpha1', 'alpha2', 'alpha3', 'alpha_p')
-#: Observation bounds of E and M (``control/step.py`` E_RANGE, M_RANGE; a reading below
-#: M = 1 by detector noise is kept).
-E_BOUNDS, M_BOUNDS = (0.0, 1e4), (0.0, 1e5)
+# The measurement's columns, the observation's bounds and window and the delta action's
+# commands are control/observation.py's, which the DRL controller runs too.
+__all__ = ['E_BOUNDS', 'INFO_KEYS', 'M_BOUNDS', 'MEASUREMENT', 'LaserBatch', 'PeriodResult',
+           'action_bounds', 'observation_bounds']
 
 
 @dataclass(frozen=True)
@@ -82,7 +84,7 @@ class LaserBatch:
         self.servos = Servos(self.bench, np.zeros((B, 4)))  # every lane's mounts
         self.round_trip = np.zeros(B, np.int64)
         self.last_m = np.full(B, np.nan)
-        self.window = np.zeros((B, config.window, 6))
+        self.window = MeasurementWindow(B, config.window, config.low, config.high)
         self._fresh = np.ones(B, bool)
         self._scenarios: list = [None] * B
         self._envelopes: list[dict[str, np.ndarray] | None] = [None] * B
@@ -148,8 +150,7 @@ class LaserBatch:
         """The commands (B, 4) [rad] the actions (B, 4) give from the current ones."""
         actions = np.asarray(actions, float)
         if self.config.action == 'delta':
-            step = np.clip(actions, -self.limits.max_step, self.limits.max_step)
-            return np.clip(self.servos.target + step, self.limits.low, self.limits.high)
+            return delta_commands(self.servos.target, actions, self.limits)
         return self.limits.apply(self.servos.target, actions)
 
     def period(self, actions: np.ndarray | None = None,
@@ -232,9 +233,7 @@ class LaserBatch:
             envelope = self._envelopes[i]
             if envelope is not None:
                 o_star[i] = np.interp(k_last[i], envelope['K'], envelope['O_star'])
-        self.window[~self._fresh] = np.roll(self.window[~self._fresh], -1, axis=1)
-        self.window[:, -1] = measurement
-        self.window[self._fresh] = measurement[self._fresh, None, :]
+        self.window.push(measurement, self._fresh)
         self._fresh[:] = False
         info = {'K': k_last.copy(), 'O_star': o_star, 'O_true': o_true,
                 'round_trip': self.round_trip.copy(), 'settled': settled,
@@ -244,16 +243,13 @@ class LaserBatch:
 
     def observation(self) -> np.ndarray:
         """(B, window * 6) float32: the window's measurements, oldest first, clipped into
-        the observation's bounds."""
-        low, high = observation_bounds(self.config)
-        return np.clip(self.window.reshape(self.batch, -1), low, high).astype(np.float32)
+        the observation's bounds (:class:`~dlmpc_ros.control.observation.MeasurementWindow`)."""
+        return self.window.observation()
 
 
 def observation_bounds(config: LaserEnvConfig) -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper bounds (window * 6,) of an observation."""
-    low = np.array([E_BOUNDS[0], M_BOUNDS[0], *[config.low] * 4])
-    high = np.array([E_BOUNDS[1], M_BOUNDS[1], *[config.high] * 4])
-    return np.tile(low, config.window), np.tile(high, config.window)
+    return window_bounds(config.window, config.low, config.high)
 
 
 def action_bounds(config: LaserEnvConfig) -> tuple[np.ndarray, np.ndarray]:
