@@ -61,7 +61,7 @@ evaluate-plants: $(STAMP)
 	    $(foreach c,$(CONTROLLERS),--controller $(c)) --workers $(WORKERS) \
 	    --out $(OUT)/plants/lock
 
-# Issue 15's held-out benchmark (docs/adaptation.md): family plants 101-108, used for no
+# Issue 15's held-out benchmark (docs/controller.md): family plants 101-108, used for no
 # choice, two drifts, seeds 1-3, every controller; the lock benchmark on them and the
 # nominal cavity. About an hour on 2 cores; --resume keeps the runs already made.
 HELDOUT ?= 101 102 103 104 105 106 107 108
@@ -76,7 +76,7 @@ evaluate-heldout: $(STAMP)
 	    $(foreach c,$(CONTROLLERS),--controller $(c)) --workers $(WORKERS) \
 	    --out $(OUT)/heldout/lock
 
-# The ablation of docs/adaptation.md: the DL-MPC without each of its parts, on the nominal
+# The ablation of docs/controller.md: the DL-MPC without each of its parts, on the nominal
 # cavity and the held-out plants (bench/ablation_variants.json; nominal-only pretraining
 # first makes its own predictor with bench/nominal_pretraining.py).
 ablation: $(STAMP)
