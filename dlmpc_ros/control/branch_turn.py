@@ -31,14 +31,39 @@ Two checks make it safe on a laser that is not the simulator:
 from __future__ import annotations
 
 from collections.abc import Callable
+from enum import Enum
 
 import numpy as np
 
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.core.symmetry import QUARTER_TURN
 
-#: What a period of the turn ended with (:meth:`BranchTurn.step`).
-ARRIVED, KEPT, RETURNED, ABANDONED = 'arrived', 'kept', 'returned', 'abandoned'
+class TurnEvent(Enum):
+    """What a period of a turn ended with (:meth:`BranchTurn.step`)."""
+
+    NONE = ''
+    ARRIVED = 'arrived'      # on the other branch; on trial
+    KEPT = 'kept'            # the other branch was better: the turn stays
+    RETURNED = 'returned'    # it was not: back on the branch it started from
+    ABANDONED = 'abandoned'  # the pulse was going: back where it started
+
+
+class TurnPhase(Enum):
+    """Where a turn is. Transitions (:meth:`BranchTurn.step`): IDLE -> GO (begin);
+    GO -> VERIFY (arrived), GO -> LOST (O under the turn guard on the way); VERIFY ->
+    IDLE (kept), VERIFY -> BACK (no better), VERIFY -> LANDED (O under the turn guard
+    where it landed); BACK, LOST, LANDED -> IDLE once back; any -> IDLE (cancel)."""
+
+    IDLE = ''
+    GO = 'go'          # turning toward the other branch
+    VERIFY = 'verify'  # on the other branch, on trial
+    BACK = 'back'      # retracing: the other branch was no better
+    LOST = 'lost'      # retracing: the pulse was going on the way
+    LANDED = 'landed'  # retracing: the pulse was going where it landed
+
+
+ARRIVED, KEPT, RETURNED, ABANDONED = (TurnEvent.ARRIVED, TurnEvent.KEPT, TurnEvent.RETURNED,
+                                      TurnEvent.ABANDONED)
 
 
 class BranchTurn:
@@ -65,7 +90,7 @@ class BranchTurn:
         self._from = np.zeros(4)             # the angles it started from
         self._before = 0.0                   # O just before it
         self._way = -1.0
-        self._phase = ''                     # '', 'go', 'verify', 'back', 'lost', 'landed'
+        self._phase = TurnPhase.IDLE
         self.landing = 0.0                   # curve point the turn under way lands at
         self._checked: list[float] = []      # O measured while verifying
         #: the last turn ended with the pulse going where it landed (until one is kept)
@@ -73,7 +98,7 @@ class BranchTurn:
 
     @property
     def busy(self) -> bool:
-        return bool(self._phase)
+        return self._phase is not TurnPhase.IDLE
 
     def tick(self) -> None:
         """One period passed (the cooldown runs down)."""
@@ -82,7 +107,7 @@ class BranchTurn:
 
     def cancel(self) -> None:
         """Something else took over: forget the turn under way."""
-        self._phase, self._path = '', []
+        self._phase, self._path = TurnPhase.IDLE, []
 
     def begin(self, current: np.ndarray, u: float, objective: float) -> bool:
         """Start a turn from the angles ``current`` (4,) [rad] at curve point ``u``, with
@@ -114,55 +139,54 @@ class BranchTurn:
                 self._way, self._path, self._issued = way, path, []
                 self._from = np.asarray(current, float)
                 self._before = float(objective)
-                self._phase = 'go'
+                self._phase = TurnPhase.GO
                 return True
         self.blocked += 1
         self.wait = cfg.turn_cooldown
         return False
 
-    def _retrace(self, phase: str) -> None:
+    def _retrace(self, phase: TurnPhase) -> None:
         """Go back the way the turn came (its commands so far in reverse, then the angles
-        it started from), as ``phase``: 'back' (no better), 'lost' or 'landed' (the
-        pulse going on the way or where it landed)."""
+        it started from), as ``phase``: BACK (no better), LOST or LANDED (the pulse going
+        on the way or where it landed)."""
         self._phase, self._path = phase, self._issued[-2::-1] + [self._from]
 
-    def step(self, objective: float) -> tuple[np.ndarray | None, str]:
+    def step(self, objective: float) -> tuple[np.ndarray | None, TurnEvent]:
         """This period's O -> the command of the turn (None while verifying: the tracker
-        holds the new branch's point) and what the period ended with ('' or one of
-        :data:`ARRIVED`, :data:`KEPT`, :data:`RETURNED`, :data:`ABANDONED`)."""
+        holds the new branch's point) and what the period ended with."""
         cfg = self.config
-        if (self._phase == 'verify' and cfg.landing_guard
+        if (self._phase is TurnPhase.VERIFY and cfg.landing_guard
                 and not objective >= cfg.turn_guard * self._before):  # going where it landed
-            self._retrace('landed')
+            self._retrace(TurnPhase.LANDED)
             self.lost_landing = True
-        elif self._phase == 'verify':
+        elif self._phase is TurnPhase.VERIFY:
             if np.isfinite(objective):
                 self._checked.append(float(objective))
             if len(self._checked) < cfg.verify:
-                return None, ''
+                return None, TurnEvent.NONE
             settled = self._checked[-max(1, cfg.verify // 2):]  # the later half: settled
             if np.median(settled) >= (1 + cfg.branch_gain) * self._before:
-                self._phase, self.wait = '', cfg.turn_cooldown
+                self._phase, self.wait = TurnPhase.IDLE, cfg.turn_cooldown
                 self.made += 1
                 self.lost_landing = False
                 return None, KEPT
-            self._retrace('back')
-        elif (self._phase == 'go' and self._issued
+            self._retrace(TurnPhase.BACK)
+        elif (self._phase is TurnPhase.GO and self._issued
               and not objective >= cfg.turn_guard * self._before):  # the pulse is going
-            self._retrace('lost')
+            self._retrace(TurnPhase.LOST)
         command = self._path.pop(0)
         self._issued.append(command)
         if self._path:
-            return command, ''
-        if self._phase == 'go':
-            self._phase, self._checked = 'verify', []
+            return command, TurnEvent.NONE
+        if self._phase is TurnPhase.GO:
+            self._phase, self._checked = TurnPhase.VERIFY, []
             return command, ARRIVED
-        event = RETURNED if self._phase == 'back' else ABANDONED
+        event = RETURNED if self._phase is TurnPhase.BACK else ABANDONED
         if event == ABANDONED:
             self.abandoned += 1
-            if self._phase == 'lost' and self._way == self.direction:
+            if self._phase is TurnPhase.LOST and self._way == self.direction:
                 self.direction = -self._way  # the other way round next time
         else:
             self.rejected += 1
-        self._phase, self.wait = '', cfg.turn_cooldown
+        self._phase, self.wait = TurnPhase.IDLE, cfg.turn_cooldown
         return command, event

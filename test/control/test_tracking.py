@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from dlmpc_ros.control.branch_turn import TurnEvent
 from dlmpc_ros.control.dlmpc import DLMPCController
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.limits import AngleLimits
@@ -472,15 +473,15 @@ def test_a_turn_whose_pulse_goes_where_it_landed_is_taken_back_at_once():
         turner = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg).turner
         assert turner.begin(ANGLES[20], GRID[20], 0.2)
         events = [turner.step(0.2)[1] for _ in range(steps)]
-        assert events[-1] == 'arrived'
+        assert events[-1] is TurnEvent.ARRIVED
         command, event = turner.step(0.05)          # the pulse is going at the landing
         if guard:
             assert command is not None and turner.lost_landing
             back = [turner.step(0.05)[1] for _ in range(steps - 1)]
-            assert back[-1] == 'abandoned' and turner.abandoned == 1
+            assert back[-1] is TurnEvent.ABANDONED and turner.abandoned == 1
             assert turner.direction == -1.0          # the way round that kept the pulse
         else:
-            assert command is None and event == '' and not turner.lost_landing
+            assert command is None and event is TurnEvent.NONE and not turner.lost_landing
             assert [turner.step(0.05)[0] for _ in range(cfg.verify - 1)][-1] is not None
 
 
