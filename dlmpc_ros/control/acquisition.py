@@ -181,6 +181,9 @@ class LockSupervisor:
         self._order: list[ScanPoint] = []
         self._target: ScanPoint | None = None
         self._dwell = self._travel = 0
+        #: Whether the latest command only moves the servos on toward the scan's point
+        #: (the next decision needs no measurement there).
+        self.travelling = False
 
     def locked(self, objective: float) -> bool:
         """Whether O is at the lock threshold and at ``relock_fraction`` of the level."""
@@ -189,6 +192,7 @@ class LockSupervisor:
 
     def step(self, objective: float, current: np.ndarray, surrogate: float) -> np.ndarray | None:
         self.locked_at = None
+        self.travelling = False
         if np.isfinite(objective):
             self._latest.append(float(objective))
             self.level = max(float(np.median(self._latest)),
@@ -240,6 +244,7 @@ class LockSupervisor:
         if self._target is not None:
             self._travel += 1
             if not self._arrived(current):
+                self.travelling = True
                 return self._toward(current)
             self._dwell += 1
             if self._dwell < self.config.dwell_periods:
@@ -248,4 +253,5 @@ class LockSupervisor:
             self._order = self.source.pass_order(current)
         self._target = self._order.pop(0)
         self._dwell = self._travel = 0
+        self.travelling = not self._arrived(current)
         return self._toward(current)

@@ -164,7 +164,8 @@ class DLMPCController:
                            prediction_error=error,
                            predicted_objective=decision.predicted_objective,
                            iterations=decision.iterations,
-                           latency_ms=1e3 * (time.perf_counter() - started))
+                           latency_ms=1e3 * (time.perf_counter() - started),
+                           measure=not decision.travel)
 
     def _decide(self, period: Period) -> Decision:
         """The first mode's decision; the modes after it stand down."""

@@ -64,6 +64,8 @@ class Decision:
     """Plan iterations (the outer loop's plans only)."""
     predicted_next: torch.Tensor | None = None
     """(2,) normalized state the plan predicts for the end of the next period."""
+    travel: bool = False
+    """The angles only move the servos on toward a goal (no measurement needed there)."""
 
 
 class Mode(Protocol):
@@ -141,7 +143,7 @@ class AcquireMode:
     def decide(self, period: Period) -> Decision | None:
         scan = self.supervisor.step(period.objective, period.current, period.surrogate)
         if scan is not None:
-            return Decision(scan, self.name)
+            return Decision(scan, self.name, travel=self.supervisor.travelling)
         point = self.supervisor.locked_at
         if point is not None and point.branch and self.tracker is not None:
             self.tracker.enter_at(point.estimate, point.branch, period.objective)

@@ -7,7 +7,8 @@ counts once every reported angle is within ``tolerance`` of the command (it is
 *settled*). The measurement ``(E, M, alpha[4])`` is the mean E and M of the settled
 states among the latest ``round_trips`` (n) round trips, with their median reported
 angles. A decision is due at the first round trip r >= (last decision) + P at which the
-readings have been settled for min(n, P) round trips (since the round trip after the
+readings have been settled for min(n, P) round trips (1 round trip after a command given
+with ``measure=False``: a controller that only moves the servos on needs no average) (since the round trip after the
 latest state away from the command: a driver that skips round trip numbers is not held
 up by the ones it did not report), or at (last decision) +
 ``timeout`` whatever they are (then, if the servos never settled, the measurement is the
@@ -87,6 +88,7 @@ class PeriodMeasurement:
         self._moved = False                   # the command moved the servos
         self._first_settled: int | None = None
         self._last_away = 0                   # latest state away from the command
+        self._measure = True                  # the next decision needs a measurement
         #: Whether the latest measurement was of settled states.
         self.settled = True
         #: Round trips from the decision before the latest one to the first state at its
@@ -109,11 +111,14 @@ class PeriodMeasurement:
     def _at_command(self, state: np.ndarray, reference: np.ndarray) -> bool:
         return bool(np.abs(state[2:] - reference).max() <= self.tolerance)
 
-    def command(self, angles: np.ndarray | None) -> None:
+    def command(self, angles: np.ndarray | None, measure: bool = True) -> None:
         """The command (4,) [rad] decided on at the latest decision (None: not known;
         the latest state's angles are the reference). Call it after every decision; no
-        decision is due before."""
+        decision is due before. ``measure=False``: the next decision comes once the
+        command is reached (and at least P after this one), on the settled states there
+        are by then, however few."""
         self._awaiting = False
+        self._measure = bool(measure)
         self._command = None if angles is None else np.array(angles, float)
         latest = self._latest[-1][1][2:] if self._latest else None
         self._moved = (self._command is not None and latest is not None
@@ -164,7 +169,8 @@ class PeriodMeasurement:
         if elapsed < self.period:
             return None
         since = self._settled_since()
-        needed = min(self.round_trips, self.period) if self._command is not None else 1
+        needed = (min(self.round_trips, self.period)
+                  if self._command is not None and self._measure else 1)
         settled_long_enough = since is not None and round_trip - since + 1 >= needed
         if not settled_long_enough and elapsed < max(self.timeout, self.period):
             return None

@@ -10,10 +10,11 @@ import numpy as np
 #: Modes a controller reports: the DL-MPC loops, holding (no usable input), baselines,
 #: the DL-MPC's lock acquisition scan, its curve tracking, the genetic algorithm, the
 #: DL-MPC's planned turns of its curve (tracking periods in which the planner moved it),
-#: ``custom`` for a plug-in controller's own (docs/controllers.md), and Bayesian
-#: optimization. The index is published: a new mode goes at the end.
+#: ``custom`` for a plug-in controller's own (docs/controllers.md), Bayesian
+#: optimization, and the deep-RL policy (``control/drl.py``). The index is published: a
+#: new mode goes at the end.
 MODES = ('inner', 'outer', 'hold', 'passive', 'fixed_best', 'esc', 'oracle', 'acquire',
-         'track', 'ga', 'plan', 'custom', 'bo')
+         'track', 'ga', 'plan', 'custom', 'bo', 'drl')
 
 
 @dataclass(frozen=True)
@@ -31,6 +32,10 @@ class ControlStep:
     predicted_objective: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (N,)
     iterations: int = 0
     latency_ms: float = 0.0
+    measure: bool = True
+    """Whether the next decision needs a measurement at ``angles`` (False: the controller
+    only moves the servos on, and decides again as soon as they report the command
+    reached, without waiting for the round trips a measurement averages)."""
 
     @property
     def mode_index(self) -> int:

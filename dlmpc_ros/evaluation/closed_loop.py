@@ -115,7 +115,7 @@ def run_closed_loop(controller: Controller, scenario: Scenario, round_trips: int
         if observe_truth is not None:
             observe_truth(k)
         step = controller.step(measurement, surrogate)
-        periods.command(step.angles)
+        periods.command(step.angles, step.measure)
         lab.command(step.angles)
         if bench_config.instant_servos:
             cavity.set_angles(lab.advance())
@@ -151,5 +151,5 @@ def replay_decisions(controller: Controller, record: RunRecord,
             continue
         surrogate = None if estimator is None else estimator.update(measurement)[0]
         steps.append(controller.step(measurement, surrogate))
-        periods.command(steps[-1].angles)
+        periods.command(steps[-1].angles, steps[-1].measure)
     return steps

@@ -262,7 +262,7 @@ class ControllerNodeBase(Node):
             step = ControlStep(angles=self.limits.apply(measurement[2:6], measurement[2:6]),
                                mode='hold')
             self.controller = self.fresh_controller()
-        self._periods.command(step.angles)
+        self._periods.command(step.angles, step.measure)
         self._cmd_pub.publish(vector_message(itf.ANGLE_FIELDS, step.angles))
         age = -1.0 if self._last_estimate_round_trip is None else (
             (round_trip - self._last_estimate_round_trip) / self.period)

@@ -104,13 +104,19 @@ def test_dlmpc_scans_within_the_servo_limits_while_unlocked():
     ctrl = DLMPCController(kmap, mprnn, config, target_objective=0.2)
     assert ctrl.acquisition.threshold == pytest.approx(0.1)
     angles = np.zeros(4)
-    modes = []
+    modes, measured = [], []
     for _ in range(8):  # O = 0.3 / 30 = 0.01: off the pulse
         step = ctrl.step(np.r_[0.3, 30.0, angles], 0.0)
         assert np.abs(step.angles - angles).max() <= config.limits.max_step + 1e-12
         modes.append(step.mode)
+        measured.append(step.measure)
+        if step.mode == 'acquire':
+            assert step.measure is not ctrl.acquisition.travelling
         angles = step.angles
     assert modes[:3] == ['inner'] * 3 and set(modes[3:]) == {'acquire'}
+    # on the way to a scan point no measurement is needed: the next decision comes as
+    # soon as the servos report the command reached; at the point it is measured again
+    assert all(measured[:3]) and not all(measured[3:])
     assert ctrl.step(np.r_[6.0, 30.0, angles], 0.0).mode != 'acquire'  # O = 0.2: locked
     assert DLMPCController(kmap, mprnn, config).acquisition is None  # no target: no scan
     fresh = ctrl.fresh()

@@ -76,6 +76,29 @@ def test_a_decision_waits_until_the_servos_reach_the_command():
     assert periods.last_decision == 20
 
 
+def test_a_command_that_only_moves_the_servos_on_is_decided_on_once_reached():
+    """measure=False (the controller is travelling): no average is waited for, the
+    decision comes with the first settled state, never before the period."""
+    alpha1 = [0.1, 0.1, 0.1, 0.13, 0.16, 0.19, 0.195, 0.2, 0.2]  # settled from 17 on
+    due = {}
+    for measure in (True, False):
+        periods = PeriodMeasurement(period=5, round_trips=3, tolerance=0.01, timeout=50)
+        for r in range(8, 11):
+            periods.add(r, _state(1.0, 1.0))
+        periods.command(OTHER, measure=measure)
+        for r, a in zip(range(11, 21), [*alpha1, 0.2]):
+            if periods.add(r, _state(float(r), 1.0, [a, *OTHER[1:]])) is not None:
+                due[measure] = r
+                break
+    assert due == {True: 19, False: 17}
+    # with servos that arrive at once it changes nothing: still one decision per period
+    periods = PeriodMeasurement(period=10, round_trips=3)
+    periods.add(10, _state(1.0, 1.0))
+    periods.command(OTHER, measure=False)
+    assert [r for r in range(11, 21) if periods.add(r, _state(1.0, 1.0, OTHER)) is not None] \
+        == [20]
+
+
 def test_a_command_not_reached_is_decided_on_at_the_timeout():
     periods = PeriodMeasurement(period=10, round_trips=3, tolerance=0.001, timeout=30)
     for r in range(8, 11):
