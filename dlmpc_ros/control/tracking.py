@@ -65,10 +65,6 @@ class TrackingConfig:
     """Half-amplitude of the dither on ``s``."""
     block: int = 3
     """Control periods per dither half."""
-    block_mean: int = 1
-    """The block's O is the mean over its last this many periods (1: its last period's;
-    at most ``block``). Measured: no gain against 1 % noise on E and M
-    (``bench/results/noise_block.md``)."""
     step: float = 0.015
     """First change of the estimate after a compared block; it grows by ``grow`` while the
     comparisons agree in sign and shrinks by ``shrink`` when they flip (Rprop), within
@@ -111,12 +107,6 @@ class TrackingConfig:
     cavity's scale, under which a laser with less O surveyed every ``survey_cooldown``
     periods and one with more never did). Chosen on the development plants: 0.956
     against 0.932 (``bench/results/survey_scale.md``)."""
-    survey_scale_quantile: float = 1.0
-    """Which quantile of those recent ratios is the laser's scale (1: the best). Measured
-    on the development plants with single-period ratios and a single-block trial: 0.9
-    cost 0.002 without noise and halved what 1 % noise on E and M cost (0.010 against
-    0.017; ``bench/results/survey_scale.md``); ``survey_scale_window`` and
-    ``trial_blocks`` now do more for it."""
     survey_scale_window: int = 10
     """Each of those ratios is the mean over this many consecutive tracking periods (1: one
     period's): the best of 300 single noisy periods sits about three standard deviations
@@ -235,18 +225,12 @@ class TrackingConfig:
                 or self.settle < 0:
             raise ValueError('block, entry_patience, guard_periods and cooldown must be '
                              '>= 1 and settle >= 0')
-        if not 1 <= self.block_mean <= self.block:
-            raise ValueError(f'block_mean must be in [1, block={self.block}], got '
-                             f'{self.block_mean}')
         if not 0 < self.guard <= 1:
             raise ValueError(f'guard must be in (0, 1], got {self.guard}')
         if not (0 < self.survey_ratio <= 1 and self.survey_spacing > 0) \
                 or min(self.survey_patience, self.survey_dwell, self.survey_cooldown) < 1:
             raise ValueError('survey_ratio must be in (0, 1], survey_spacing > 0 and the '
                              'survey periods >= 1')
-        if not 0 < self.survey_scale_quantile <= 1:
-            raise ValueError('survey_scale_quantile must be in (0, 1], got '
-                             f'{self.survey_scale_quantile}')
         if self.trial_blocks < 1:
             raise ValueError(f'trial_blocks must be >= 1, got {self.trial_blocks}')
         if self.survey_scale_window < 1:
@@ -413,12 +397,12 @@ class CurveTracker:
                                           self.branch * self.estimate, self._reference()):
                 return self._turning(float(objective))
         self._in_block += 1
-        if self._in_block > 1 and self._block_values and objective > 0 \
-                and self._block_values[-1] > 0:
-            self._jitter.append(abs(float(np.log(objective / self._block_values[-1]))))
-        self._block_values.append(float(objective))
+        previous = self._previous
+        if self._in_block > 1 and previous is not None and objective > 0 and previous > 0:
+            self._jitter.append(abs(float(np.log(objective / previous))))
+        self._previous = float(objective)
         if self._in_block >= self.config.block:
-            self._end_block(float(np.mean(self._block_values)))
+            self._end_block(float(objective))
             if (current is not None and self._wants_other_branch()
                     and self.turner.begin(np.asarray(current, float),
                                           self.branch * self.estimate, self._reference())):
@@ -472,11 +456,8 @@ class CurveTracker:
         if self.config.survey_scale == 'own' and expected > 0 and np.isfinite(objective):
             self._scale_window.append(objective / expected)
             self._scale.append(sum(self._scale_window) / len(self._scale_window))
-            quantile = self.config.survey_scale_quantile
-            # the best ratio is the quantile 1; max() is 13 x cheaper than np.quantile on a
-            # deque of 300 (6 against 83 us a period)
-            level *= max(self._scale) if quantile == 1 else float(np.quantile(self._scale,
-                                                                               quantile))
+            # the laser's scale: the best recent ratio
+            level *= max(self._scale)
         self._short = self._short + 1 if not objective >= level else 0
         return self._short >= self.config.survey_patience and self._survey_wait == 0
 
@@ -551,7 +532,7 @@ class CurveTracker:
         """Start the dither afresh: first block, no blocks recorded, first Rprop step (the
         learned rotation stays)."""
         self._sign, self._in_block = 1.0, 0  # sign of the dither in the current block
-        self._block_values = deque(maxlen=self.config.block_mean)  # O of its last periods
+        self._previous: float | None = None  # O of the block's previous period
         self._blocks.clear()
         self._block_count = 0                # blocks closed since (for the plans)
         self._step, self._last_move = self.config.step, 0.0  # Rprop step and last sign
@@ -577,13 +558,14 @@ class CurveTracker:
     def _deadband(self) -> float:
         """The relative O difference under which the estimate holds: ``deadband``, or
         ``noise_deadband`` standard deviations of the compared difference's noise if
-        larger (a block's O is the mean of ``block_mean`` periods; the difference
-        weighs three blocks 1, 1/2, 1/2, so its variance is 1.5 times a block's)."""
+        larger (a block's O is its last period's; the difference weighs three blocks 1,
+        1/2, 1/2, so its variance is 1.5 times a period's; averaging a block's periods
+        did not pay, ``bench/results/noise_block.md``)."""
         cfg = self.config
         if cfg.noise_deadband <= 0 or len(self._jitter) < 8:
             return cfg.deadband
         return max(cfg.deadband,
-                   cfg.noise_deadband * self.noise() * np.sqrt(1.5 / cfg.block_mean))
+                   cfg.noise_deadband * self.noise() * np.sqrt(1.5))
 
     def noise(self) -> float:
         """The measurement noise read off the run: the standard deviation of one period's
@@ -601,7 +583,7 @@ class CurveTracker:
         cfg = self.config
         self._blocks.append((self._sign, objective))
         self._in_block = 0
-        self._block_values.clear()
+        self._previous = None
         self._block_count += 1
         self._sign = -self._sign
         if self._age > cfg.settle and cfg.trial_drop > 0 and np.isfinite(objective):

@@ -64,16 +64,14 @@ def test_estimate_climbs_to_the_peak_and_follows_a_drifting_one():
     assert np.corrcoef(est[late], truth[late])[0, 1] > 0.95
 
 
-def test_a_block_is_judged_by_the_mean_o_of_its_last_block_mean_periods():
-    """With block_mean = block every period of a block counts; with 1 only its last."""
+def test_a_block_is_judged_by_the_o_of_its_last_period():
     pattern = (0.2, 0.2, 0.3)                       # period by period, one block long
-    for block_mean, allowed in ((3, {0.7 / 3}), (1, {0.2, 0.3})):
-        cfg = TrackingConfig(entry_patience=1, settle=0, block=3, block_mean=block_mean,
-                             mirror=False)
-        tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
-        for t in range(60):
-            tracker.step(pattern[t % 3])
-        assert any(tracker._branch_best == pytest.approx(v) for v in allowed), block_mean
+    cfg = TrackingConfig(entry_patience=1, settle=0, block=3, mirror=False)
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
+    for t in range(60):
+        tracker.step(pattern[t % 3])
+    assert any(tracker._branch_best == pytest.approx(v) for v in (0.2, 0.3))
+    assert not tracker._branch_best == pytest.approx(0.7 / 3)  # not the block's mean
 
 
 def test_flat_objective_inside_the_deadband_leaves_the_estimate_alone():
@@ -195,10 +193,9 @@ def test_the_survey_level_can_follow_the_laser_s_own_scale_of_o():
     scale (the best O / curve O it showed lately) it never does."""
     expected = np.full(GRID.size, 0.2)
 
-    def surveys(scale: str, quantile: float = 1.0) -> int:
+    def surveys(scale: str) -> int:
         cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0, survey_patience=10,
-                             survey_cooldown=50, mirror=False, survey_scale=scale,
-                             survey_scale_quantile=quantile)
+                             survey_cooldown=50, mirror=False, survey_scale=scale)
         tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg, expected=expected)
         o, started = 0.14, 0
         for _ in range(600):
@@ -208,7 +205,7 @@ def test_the_survey_level_can_follow_the_laser_s_own_scale_of_o():
         return started
 
     assert surveys('curve') >= 3
-    assert surveys('own') == 0 and surveys('own', 0.9) == 0
+    assert surveys('own') == 0
     # on its own scale it still surveys when its O falls under what it showed lately
     cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0, survey_patience=10,
                          survey_cooldown=200, mirror=False)
@@ -220,9 +217,6 @@ def test_the_survey_level_can_follow_the_laser_s_own_scale_of_o():
     assert surveyed
     with pytest.raises(ValueError, match='survey_scale'):
         TrackingConfig(survey_scale='nominal')
-    for quantile in (0.0, 1.5):
-        with pytest.raises(ValueError, match='survey_scale_quantile'):
-            TrackingConfig(survey_scale_quantile=quantile)
 
 
 def test_noise_alone_does_not_make_a_small_fall_of_o_look_like_a_plateau():
@@ -505,7 +499,7 @@ def test_a_turn_stays_inside_the_servo_limits():
                                  dict(turn_step=0), dict(turn_step=2.0),
                                  dict(turn_guard=0), dict(turn_cooldown=0),
                                  dict(trial_drop=1.0), dict(trial_drop=-0.1),
-                                 dict(block_mean=0), dict(block_mean=4),
+                                 dict(trial_blocks=0),
                                  dict(entry_trial_below=-0.1)])
 def test_bad_tracking_settings_are_rejected(bad):
     with pytest.raises(ValueError):
