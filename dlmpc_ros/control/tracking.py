@@ -43,6 +43,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from enum import Enum
 
 import numpy as np
 
@@ -254,6 +255,29 @@ class TrackingConfig:
                              'and rotation_spread >= 0')
 
 
+class TrackerState(Enum):
+    """What the tracker does in a period (:attr:`CurveTracker.state`). Transitions:
+    IDLE -> DITHER (entry: locked for ``entry_patience`` periods after the cooldown, or
+    where the scan locked); DITHER -> TURN (the estimate past ``mirror_margin``, a fall
+    of ``trial_drop``, or the entry trial), TURN -> DITHER (kept, returned or abandoned);
+    DITHER -> SURVEY (O under the survey level for ``survey_patience``), SURVEY -> DITHER
+    (from the best point seen); DITHER -> IDLE (under the guard right after entry; later
+    it restarts at ``start``); any -> IDLE (the scan takes over)."""
+
+    IDLE = 'idle'      # not tracking: waiting for a lock and the cooldown
+    DITHER = 'dither'  # on the curve, dithering the estimate (and planning turns)
+    SURVEY = 'survey'  # visiting the curve's points for a better one
+    TURN = 'turn'      # changing branch (BranchTurn)
+
+
+#: The tracker's changes of state from one period to the next (:class:`TrackerState`).
+TRACKER_TRANSITIONS = frozenset({
+    (TrackerState.IDLE, TrackerState.DITHER), (TrackerState.DITHER, TrackerState.TURN),
+    (TrackerState.TURN, TrackerState.DITHER), (TrackerState.DITHER, TrackerState.SURVEY),
+    (TrackerState.SURVEY, TrackerState.DITHER), (TrackerState.DITHER, TrackerState.IDLE),
+    (TrackerState.TURN, TrackerState.IDLE), (TrackerState.SURVEY, TrackerState.IDLE)})
+
+
 class CurveTracker:
     """Per control period: None while the inner loop is in charge, else the angles (4,)
     [rad] on the curve.
@@ -308,6 +332,15 @@ class CurveTracker:
         self._dwell = 0
         self._recentre()          # estimate at start; age, guard, dither and steps reset
 
+    @property
+    def state(self) -> TrackerState:
+        """What the tracker is doing (:class:`TrackerState`)."""
+        if not self.active:
+            return TrackerState.IDLE
+        if self.turner.busy:
+            return TrackerState.TURN
+        return TrackerState.SURVEY if self._survey else TrackerState.DITHER
+
     def curve(self, s: float) -> np.ndarray:
         """The angles (4,) [rad] at parameter ``s`` (clipped to the grid) on the branch the
         tracker is on: the curve, or its twin ``c(-s) + pi/2``, turned by the learned
@@ -359,7 +392,7 @@ class CurveTracker:
         locked = bool(np.isfinite(objective) and objective >= self.threshold)
         self._latest.append(float(objective) if np.isfinite(objective) else 0.0)
         self.planned = 0.0  # the planner's turn this period [rad]
-        if not self.active:
+        if self.state is TrackerState.IDLE:
             return self._maybe_enter(objective, locked)
         self._age += 1
         if self._age <= self.config.settle and np.isfinite(objective):
@@ -368,9 +401,9 @@ class CurveTracker:
                 self._entry_objective = max(self._entry_objective,
                                             float(np.median(self._settling)))
         self.turner.tick()
-        if self.turner.busy:
+        if self.state is TrackerState.TURN:
             return self._turning(float(objective))
-        if self._survey:
+        if self.state is TrackerState.SURVEY:
             return self._survey_step(float(objective))
         if self._age > self.config.settle:
             bad = not (np.isfinite(objective)

@@ -10,7 +10,8 @@ from dlmpc_ros.control.branch_turn import TurnEvent
 from dlmpc_ros.control.dlmpc import DLMPCController
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.tracking import CurveTracker, TrackingConfig
+from dlmpc_ros.control.tracking import (TRACKER_TRANSITIONS, CurveTracker, TrackerState,
+                                        TrackingConfig)
 from dlmpc_ros.core.symmetry import QUARTER_TURN
 from dlmpc_ros.learning.kmap import KMap, KMapConfig
 from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
@@ -273,12 +274,15 @@ def _mirrored_objective(cmd: np.ndarray, k: float, angles: np.ndarray = ANGLES,
 
 
 def _drive_mirrored(tracker: CurveTracker, k_of_period, periods: int,
-                    angles: np.ndarray = ANGLES, curvature: float = 0.6):
+                    angles: np.ndarray = ANGLES, curvature: float = 0.6,
+                    states: list | None = None):
     """Feed the tracker the mirrored toy's O and the angles it ran with; (O, commands,
-    branch) per period."""
+    branch) per period (and its state after each period into ``states``)."""
     o, current, objectives, commands, branch = 0.2, None, [], [], []
     for t in range(periods):
         cmd = tracker.step(o, current)
+        if states is not None:
+            states.append(tracker.state)
         if cmd is not None:  # through the servo limits, as the supervisor sends it
             current = tracker.limits.apply(cmd if current is None else current, cmd)
             cmd = current
@@ -294,8 +298,13 @@ def test_tracker_turns_to_the_mirror_twin_when_k_drifts_through_zero():
     cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, entry_trial_inner=False)
     drift = lambda t: -0.15 + 0.3 * min(t / 2500, 1.0)          # noqa: E731
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
-    o, _, branch = _drive_mirrored(tracker, drift, 3000)
+    states: list[TrackerState] = []
+    o, _, branch = _drive_mirrored(tracker, drift, 3000, states=states)
     assert tracker.branch == -1 and tracker.turner.abandoned == 0
+    # every change of state is one of the documented transitions
+    changes = {(a, b) for a, b in zip(states, states[1:]) if a is not b}
+    assert (TrackerState.DITHER, TrackerState.TURN) in changes
+    assert changes <= TRACKER_TRANSITIONS, changes - TRACKER_TRANSITIONS
     assert tracker.turner.made >= 1       # turns that found no better branch were taken back
     changed = np.flatnonzero(np.diff(branch)) + 1
     assert changed.size == tracker.turner.made + 2 * tracker.turner.rejected
