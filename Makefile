@@ -102,12 +102,14 @@ fuzz: $(STAMP)
 	DLMPC_FUZZ_PROFILE=long $(PY) -m pytest -q test/core/test_fuzz_core.py \
 	    test/control/test_fuzz_controllers.py test/nodes/test_fuzz_properties.py
 
-# Regenerate the training data (data/, not committed) and the shipped models (models/).
+# Regenerate the training data (data/, not committed) and the shipped models (models/);
+# then the deep-RL baseline (no data needed; about 20 minutes on one core, docs/gym.md).
 data: $(STAMP)
 	$(VENV)/bin/dlmpc-data all --data-dir data
 
 models: data
 	$(VENV)/bin/dlmpc-train all --data-dir data --models-dir models
+	$(VENV)/bin/dlmpc-train drl --data-dir data --models-dir models
 
 # ruff, then the import contracts of .importlinter (the layers of docs/architecture.md).
 lint: $(STAMP)

@@ -33,7 +33,10 @@ setup(
     ],
     extras_require={'ml': ['torch>=2.2,<3', 'tqdm>=4.60'],
                     # dlmpc_ros.gym only (docs/gym.md); the nodes never import it
-                    'gym': ['gymnasium>=1.0,<2']},
+                    'gym': ['gymnasium>=1.0,<2'],
+                    # dlmpc-train drl only (training/drl.py); the drl controller runs numpy
+                    'drl': ['gymnasium>=1.0,<2', 'stable-baselines3>=2.3,<3',
+                            'torch>=2.2,<3']},
     zip_safe=True,
     maintainer='dlmpc_ros developers',
     maintainer_email='dlmpc-ros@example.org',
@@ -59,7 +62,7 @@ setup(
         f'{PACKAGE}.controllers': [
             f'{name} = {PACKAGE}.control.factory:{name}'
             for name in ('dlmpc', 'dlmpc_paper', 'esc', 'ga', 'passive', 'fixed_best',
-                         'oracle', 'bo')
+                         'oracle', 'bo', 'drl')
         ],
     },
 )

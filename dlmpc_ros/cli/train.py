@@ -14,6 +14,10 @@ laser from a bag of ``bringup --controller explore --record DIR`` (``--round-tri
 its first N round trips only) and writes a models folder to run with
 (:mod:`dlmpc_ros.training.adapt`): the planner's correction, the rotation to start
 from (``--laser-estimator``: also the laser's own estimator and map).
+``drl`` trains the deep-RL baseline (Stable-Baselines3 PPO on the Gymnasium environment of
+the laser over the plant family, about 20 minutes on one core; not part of ``all``, ``make
+models`` runs it after) and writes ``models/drl_policy.npz`` + ``.json`` (plain arrays and
+JSON, no pickles) and ``models/figures/drl_reward.png`` (:mod:`dlmpc_ros.training.stages.drl`).
 ``check-estimator`` measures where the shipped estimator's surrogate gets its information
 (angles or E and M; needs true K, so it is an evaluation) and writes a report to ``--out``.
 """
@@ -32,12 +36,13 @@ from dlmpc_ros.scaleout import default_workers
 from dlmpc_ros.training.workspace import Workspace
 
 STAGES = ('all', 'vae', 'kmap', 'mprnn', 'baselines', 'curve', 'response', 'check-estimator',
-          'adapt')
+          'adapt', 'drl')
 
 
 def run_stages(stage: str, ws: Workspace, seed: int, quick: bool, show: bool,
-               workers: int = 1) -> None:
-    """Run ``stage`` (or every stage for ``all``), writing each one's metrics."""
+               workers: int = 1, drl: dict | None = None) -> None:
+    """Run ``stage`` (or every stage for ``all``), writing each one's metrics; ``drl``:
+    the deep-RL stage's settings over :class:`~dlmpc_ros.training.drl.DRLConfig`'s."""
     if stage in ('all', 'vae'):
         from dlmpc_ros.training.stages.vae import train_vae_stage
         metrics = train_vae_stage(ws, seed, epochs=2 if quick else 25, show_progress=show)
@@ -80,6 +85,26 @@ def run_stages(stage: str, ws: Workspace, seed: int, quick: bool, show: bool,
               f"plans gain {plans['share_of_best_gain']:.2f} of the best turn, "
               f"{plans['plans_that_lose_the_pulse']} of {plans['plans']} lose the pulse",
               flush=True)
+    if stage == 'drl':
+        train_drl(ws, seed, quick, show, drl or {})
+
+
+def train_drl(ws: Workspace, seed: int, quick: bool, show: bool, settings: dict) -> None:
+    """The deep-RL baseline's stage (its metrics go to ``models/metrics.json``)."""
+    from dataclasses import replace
+
+    from dlmpc_ros.training.drl import DRLConfig
+    from dlmpc_ros.training.stages.drl import quick_config, train_drl_stage
+    config = quick_config(seed) if quick else DRLConfig(seed=seed)
+    config = replace(config, **{k: v for k, v in settings.items() if v})
+    metrics = train_drl_stage(ws, seed, quick=quick, show_progress=show, config=config)
+    ws.write_metrics('drl', metrics)
+    dev = metrics['development']['nominal_drift_sech']
+    print(f"drl: {metrics['algorithm']} {metrics['steps']} steps in "
+          f"{metrics['wall_seconds']:.0f} s; nominal cavity, slow drift from a pulse: O/O* "
+          f"{dev['policy_O_over_O_star']:.3f} (holding the start angles "
+          f"{dev['hold_O_over_O_star']:.3f}); wrote {ws.models_dir / metrics['file']}",
+          flush=True)
 
 
 def check_estimator(ws: Workspace, out: Path, quick: bool, show: bool) -> None:
@@ -157,6 +182,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument('--measurement-round-trips', type=int, default=MEASUREMENT_ROUND_TRIPS,
                    help='adapt: round trips a period\'s measurement averages, as the '
                         f'controller\'s parameter (default {MEASUREMENT_ROUND_TRIPS})')
+    p.add_argument('--algorithm', choices=('ppo', 'sac'),
+                   help='drl: the algorithm (default: ppo, measured the better here; '
+                        'docs/gym.md)')
+    p.add_argument('--steps', type=int, default=0,
+                   help='drl: env steps of training (0: the default, 300,000)')
     p.add_argument('--workers', type=int, default=default_workers(),
                    help='response: simulate its data on this many local Dask workers '
                         '(default: the cores)')
@@ -170,7 +200,8 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.stage == 'adapt':
             return adapt(args, show)
-        run_stages(args.stage, ws, args.seed, args.quick, show, args.workers)
+        run_stages(args.stage, ws, args.seed, args.quick, show, args.workers,
+                   drl={'algorithm': args.algorithm, 'total_steps': args.steps})
     except (FileNotFoundError, ModelFileError, ValueError) as err:
         print(f'dlmpc-train: {err}', file=sys.stderr)
         return 2

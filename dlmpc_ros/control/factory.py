@@ -3,8 +3,9 @@ the shipped model files (used by the controller nodes and by the evaluation, so 
 both run exactly the same objects).
 
 The factories :func:`dlmpc`, :func:`esc`, :func:`ga`, :func:`passive`,
-:func:`fixed_best`, :func:`oracle` and :func:`bo` are registered by name in setup.py (entry-point
-group ``dlmpc_ros.controllers``), like any plug-in's (:mod:`dlmpc_ros.control.plugins`).
+:func:`fixed_best`, :func:`oracle`, :func:`bo` and :func:`drl` are registered by name in
+setup.py (entry-point group ``dlmpc_ros.controllers``), like any plug-in's
+(:mod:`dlmpc_ros.control.plugins`).
 A factory raises :class:`~dlmpc_ros.learning.checkpoint.ModelFileError` (missing or
 corrupt file, with the command that regenerates it) or ValueError (bad settings);
 :func:`make_controller` reports either as one line (ControllerSpecError). The
@@ -33,9 +34,10 @@ from dlmpc_ros.learning.tables import load_baselines
 if TYPE_CHECKING:  # torch-based (and scikit-learn-based): imported where they are built
     from dlmpc_ros.control.bo import BOController
     from dlmpc_ros.control.dlmpc import DLMPCController
+    from dlmpc_ros.control.drl import DRLController
     from dlmpc_ros.control.estimator import SurrogateEstimator
 
-CONTROLLERS = ('dlmpc', 'esc', 'ga', 'passive', 'fixed_best', 'oracle', 'bo')
+CONTROLLERS = ('dlmpc', 'esc', 'ga', 'passive', 'fixed_best', 'oracle', 'bo', 'drl')
 BASELINES_FILE = 'oracle.npz'
 
 
@@ -134,6 +136,14 @@ def bo(models_dir: Path, limits: AngleLimits) -> BOController:
     return BOController(limits=limits)
 
 
+def drl(models_dir: Path, limits: AngleLimits) -> DRLController:
+    """The deep-RL baseline: the policy of ``models_dir/drl_policy.npz`` + ``.json``
+    (``dlmpc-train drl``; numpy, no pickles)."""
+    from dlmpc_ros.control.drl import DRLController
+    from dlmpc_ros.learning.policy import load_policy
+    return DRLController(load_policy(Path(models_dir)), limits)
+
+
 def passive(models_dir: Path, limits: AngleLimits, *, angles: np.ndarray | None = None,
             initial_k: float | None = None) -> PassiveController:
     """Holds ``angles``, or the best angles for ``initial_k`` (the setting a person tuned
@@ -162,7 +172,8 @@ def make_baseline(name: str, models_dir: Path, limits: AngleLimits | None = None
                   angles: np.ndarray | None = None, initial_k: float | None = None,
                   ga_config: GAConfig | None = None) -> Controller:
     """A built-in baseline controller: ``esc``, ``ga`` (with ``ga_config``), ``passive``
-    (``angles``, or the best for ``initial_k``), ``fixed_best``, ``oracle`` or ``bo``."""
+    (``angles``, or the best for ``initial_k``), ``fixed_best``, ``oracle``, ``bo`` or
+    ``drl``."""
     if name not in CONTROLLERS[1:]:
         raise ValueError(f'unknown baseline {name!r}; choose one of {CONTROLLERS[1:]}')
     return build(name, models_dir, limits, angles=angles, initial_k=initial_k,

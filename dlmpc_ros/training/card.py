@@ -138,8 +138,53 @@ def write_model_card(ws: Workspace) -> Path:
                   f"steady O {c['mean_objective']:.4f}) is the refined tracking path of "
                   '`oracle.npz` as a curve of angles over an estimate axis; `dlmpc-train '
                   'curve` remakes it from the shipped `oracle.npz`.']
+    if 'drl' in metrics:
+        lines += drl_lines(metrics['drl'])
     lines += ['', '## Full metrics', '', '```json', json.dumps(
-        {k: {kk: vv for kk, vv in v.items() if not kk.startswith('per_k')}
+        {k: {kk: vv for kk, vv in v.items() if not kk.startswith('per_k') and kk != 'curve'}
          for k, v in metrics.items()}, indent=1, default=float)[:20000], '```', '']
     path.write_text('\n'.join(lines))
     return path
+
+
+def drl_lines(m: dict) -> list[str]:
+    """The deep-RL baseline's section of the card (``dlmpc-train drl``)."""
+    c, machine = m['config'], m['machine']
+    settings = c.get(m['algorithm'], {})
+    conditions = ', '.join(f"{x['scenario']} from {x['initial']} x {x['lanes']}"
+                           for x in c['conditions'])
+    load = (f"; load average {machine['load_average_1min_before']:.1f} before and "
+            f"{machine['load_average_1min']:.1f} after, this job adding about 1: more is "
+            'other jobs sharing the cores' if 'load_average_1min_before' in machine else '')
+    note = f" {m['note']}" if m.get('note') else ''
+    made = (f"Made by `dlmpc-train drl --seed {m['seed']}` (`make models` runs it after "
+            f"`all`): Stable-Baselines3 {machine.get('stable-baselines3')} "
+            f"{m['algorithm'].upper()} on `ModeLockedLaser-v0`'s vector env, {m['steps']:,} env "
+            'steps (control periods of 10 round trips, all lanes together) in '
+            f"{m['wall_seconds'] / 60:.1f} minutes ({m['steps_per_second']:.0f} steps/s) on one "
+            f"core of this machine ({machine['cpu_count']} cores, {machine['processor']}, torch "
+            f"{machine.get('torch')} with 1 thread, {machine['platform']}{load}); seed "
+            f"{m['seed']}.{note}")
+    lines = ['', '## Deep-RL baseline (`drl_policy.npz` + `.json`)', '',
+             f"{made} Lanes: {conditions}; a family plant drawn per reset (domain "
+             'randomization; held-out plants 101-108 never drawn), episodes of '
+             f"{c['episode_periods']} periods, solver {json.dumps(c['solver'])} (the default "
+             f"grid, fewer split steps), reward the measured O x {c['reward_scale']:g}, "
+             f"observation the env's window of {c['features']['window']} periods of (E, M, "
+             'angles) through fixed features (`learning/policy.py`), action the change of the '
+             f"angles in [-1, 1] x 0.25 rad. Network {c['net']}; settings "
+             f"{json.dumps(settings)}. The SB3 archive (pickles) is not kept: the policy "
+             "network's weights are plain arrays, read back without pickles and run in numpy "
+             "(largest difference from SB3's deterministic action on random observations "
+             f"{m['export_max_difference']:.1e}).", '',
+             f"![reward curve]({m['figure']})", '',
+             'Development episodes on the default cavity after training '
+             f"({m['development_seconds']:.0f} s; one episode of {c['episode_periods']} periods "
+             'per lane, beside holding the start angles):', '',
+             '| episodes | lanes | policy mean O | policy O / O* | hold mean O | hold O / O* |',
+             '|---|---|---|---|---|---|']
+    for name, d in m['development'].items():
+        lines.append(f"| {name.replace('_', ' ')} | {d['lanes']} | {d['policy_mean_O']:.4f} | "
+                     f"{d['policy_O_over_O_star']:.3f} | {d['hold_mean_O']:.4f} | "
+                     f"{d['hold_O_over_O_star']:.3f} |")
+    return lines

@@ -23,7 +23,7 @@ def _no_truth(*_args, **_kwargs):
     raise AssertionError('a controller asked for the true K or the simulator')
 
 
-@pytest.mark.parametrize('name', ['dlmpc', 'esc', 'fixed_best', 'bo',
+@pytest.mark.parametrize('name', ['dlmpc', 'esc', 'fixed_best', 'bo', 'drl',
                                   'dlmpc_ros.examples.hill_climber:make'])
 def test_replayed_measurements_give_the_same_decisions_without_the_true_k(name, monkeypatch):
     models = models_dir()
