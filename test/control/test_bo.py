@@ -52,7 +52,7 @@ def test_bo_climbs_a_periodic_objective_within_the_limits_and_holds_it():
     assert locked.size and locked[0] < 50
     assert bo.holding and bo.choices >= BOConfig().initial
     assert seen[-10:].min() >= 0.1  # it holds what it found
-    assert MODES.index('bo') == len(MODES) - 1  # appended: older indices unchanged
+    assert MODES.index('bo') == 12  # appended after 'custom': older indices unchanged
 
 
 def test_bo_restarts_when_the_objective_drops_and_finds_it_again():
