@@ -7,10 +7,11 @@ counts once every reported angle is within ``tolerance`` of the command (it is
 *settled*). The measurement ``(E, M, alpha[4])`` is the mean E and M of the settled
 states among the latest ``round_trips`` (n) round trips, with their median reported
 angles. A decision is due at the first round trip r >= (last decision) + P at which the
-readings have been settled for min(n, P) round trips (1 round trip after a command given
-with ``measure=False``: a controller that only moves the servos on needs no average) (since the round trip after the
+readings have been settled for min(n, P) round trips (since the round trip after the
 latest state away from the command: a driver that skips round trip numbers is not held
-up by the ones it did not report), or at (last decision) +
+up by the ones it did not report; 1 round trip after a command given with
+``measure=False``: a controller that only moves the servos on needs no average), or at
+(last decision) +
 ``timeout`` whatever they are (then, if the servos never settled, the measurement is the
 latest state alone and :attr:`PeriodMeasurement.settled` says so). With servos that reach a
 command on the next round trip every decision falls at a multiple of P, on the same
