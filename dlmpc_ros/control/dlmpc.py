@@ -71,6 +71,9 @@ class DLMPCController:
     """
 
     name = 'dlmpc'
+    #: The harnesses (fast runs, the lock benchmark, the controller nodes) give it the VAE
+    #: estimator's surrogate with each measurement.
+    uses_estimator = True
 
     def __init__(self, kmap: KMap, mprnn: MPRNN, config: DLMPCConfig | None = None,
                  target_objective: float | None = None,

@@ -73,7 +73,9 @@ class Controller(Protocol):
     ``surrogate`` is the estimator's K surrogate for the same measurement (None when the
     estimator is silent); controllers that do not use it ignore it. No controller is
     given the true birefringence through this verb (the oracle baseline, evaluation only,
-    has a separate ``observe_truth``).
+    has a separate ``observe_truth``). A controller with a true ``uses_estimator``
+    attribute (the DL-MPC) is given the VAE estimator's surrogate by every harness;
+    the others get None.
     """
 
     name: str

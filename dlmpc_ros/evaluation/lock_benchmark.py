@@ -127,7 +127,7 @@ def run_starts(task: LockTask) -> list[dict]:
     models = Path(task.models_dir)
     envelope = {'K': task.envelope_k, 'O_star': task.envelope_o}
     limits = AngleLimits(max_step=spec.max_step)
-    estimator = load_estimator(models) if spec.controller == 'dlmpc' else None
+    estimator = None
     prototype = None
     out = []
     for index in task.indices:
@@ -143,6 +143,8 @@ def run_starts(task: LockTask) -> list[dict]:
                 prototype = controller
         if prototype is not None:
             controller = prototype.fresh()
+        if estimator is None and getattr(controller, 'uses_estimator', False):
+            estimator = load_estimator(models)
         if estimator is not None:
             estimator.reset()
         record = run_closed_loop(controller, scenario, spec.budget, spec.period, angles,

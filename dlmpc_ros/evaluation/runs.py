@@ -126,14 +126,15 @@ def run_fast(spec: RunSpec, models_dir: Path, controller: Controller | None = No
              estimator: SurrogateEstimator | None = None,
              progress: Callable[[int], None] | None = None) -> RunRecord:
     """The run in one process. ``controller`` (default: built by name from
-    ``models_dir``) and ``estimator`` (default: the VAE for ``dlmpc``) may be given, e.g.
+    ``models_dir``) and ``estimator`` (default: the VAE for a controller whose
+    ``uses_estimator`` is true, the DL-MPC's) may be given, e.g.
     a DL-MPC with other settings."""
     scenario = preset_scenario(spec.scenario, spec.seed, spec.settings or None)
     if controller is None:
         controller = make_controller(spec.controller, models_dir,
                                      AngleLimits(max_step=spec.max_step),
                                      initial_k=float(scenario(1)))
-    if estimator is None and spec.controller == 'dlmpc':
+    if estimator is None and getattr(controller, 'uses_estimator', False):
         estimator = load_estimator(models_dir)
     return run_closed_loop(controller, scenario, spec.round_trips, spec.period,
                            random_initial_angles(spec.seed), cavity_config=spec.cavity,

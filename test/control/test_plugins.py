@@ -11,6 +11,8 @@ import pytest
 from dlmpc_ros.control.factory import CONTROLLERS
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.plugins import ControllerSpecError, build, label, registered
+from dlmpc_ros.control.step import MODES
+from dlmpc_ros.evaluation.runs import RunSpec, run_fast
 from dlmpc_ros.examples.hill_climber import HillClimber
 from dlmpc_ros.paths import models_dir
 
@@ -40,6 +42,9 @@ def test_the_paper_s_dl_mpc_is_a_registered_controller_without_the_added_parts()
     paper = build('dlmpc_paper', models_dir(), AngleLimits())
     assert paper.acquisition is None and paper.tracker is None and paper.planner is None
     assert [mode.name for mode in paper.modes] == ['outer', 'inner', 'hold']
+    # it reads the VAE's surrogate, so the harness runs the estimator for it as for dlmpc
+    record = run_fast(RunSpec('sinusoidal', 1, 'dlmpc_paper', round_trips=60), models_dir())
+    assert np.isfinite(record.surrogate).all() and set(record.mode) <= {MODES.index('inner')}
 
 
 def test_an_installed_package_registers_a_name(tmp_path, monkeypatch):
