@@ -370,7 +370,8 @@ def test_the_dlmpc_controls_a_driver_written_from_the_contract_alone(ros_env, tm
     with open(decisions_path(run_csv)) as handle:
         decided = [int(float(row['round_trip'])) for row in csv.DictReader(handle)]
     gaps = np.diff(decided)
-    # at least a period apart, and longer once a command moves the lagging servos
-    assert gaps.min() >= 10 and np.median(gaps) > 10, gaps
+    # at least a period apart, and longer where a measured command moved the lagging
+    # servos (a scan command on its way asks for none: those come a period apart)
+    assert gaps.min() >= 10 and gaps.max() > 10, gaps
     assert re.search(r'commands \d+', rest)
     assert 'Traceback' not in (tmp_path / 'logs' / 'mpc_controller.log').read_text()
