@@ -321,28 +321,15 @@ def lock_starts(build: Callable, spec, envelope: dict) -> list[dict]:
     :func:`dlmpc_ros.evaluation.lock_benchmark.run_starts` runs them, with a controller
     from ``build(limits)`` per start; the same per-start dicts."""
     from dlmpc_ros.control.limits import AngleLimits
-    from dlmpc_ros.core.bench import BenchConfig
     from dlmpc_ros.core.drift import Constant
-    from dlmpc_ros.evaluation.closed_loop import run_closed_loop
-    from dlmpc_ros.evaluation.lock_benchmark import start_conditions
-    from dlmpc_ros.evaluation.metrics import first_hold
-    from dlmpc_ros.learning.tables import envelope_objective
+    from dlmpc_ros.evaluation.lock_benchmark import run_start, start_conditions
     if spec.drift != 'held':
         raise ValueError('the tuning runs the held-K lock benchmark only')
     limits = AngleLimits(max_step=spec.max_step)
     out = []
     for index in range(spec.starts):
-        angles, k0, noise_seed = start_conditions(spec.seed, index)
-        k0 = k0 if spec.k is None else float(spec.k)
-        record = run_closed_loop(build(limits), Constant(offset=k0), spec.budget, spec.period,
-                                 angles, cavity_config=spec.cavity, initial='noise',
-                                 initial_seed=noise_seed, bench=BenchConfig(**spec.bench),
-                                 noise_seed=noise_seed)
-        o = np.nan_to_num(record.O, nan=0.0)
-        locked = o >= spec.lock_fraction * envelope_objective(envelope, record.K)
-        start = first_hold(locked, 0, spec.hold_periods * spec.period)
-        out.append({'index': int(index), 'K': k0, 'locked': start is not None,
-                    'round_trips': None if start is None else int(start)})
+        k0 = start_conditions(spec.seed, index)[1] if spec.k is None else float(spec.k)
+        out.append(run_start(build(limits), spec, envelope, index, Constant(offset=k0)))
     return out
 
 

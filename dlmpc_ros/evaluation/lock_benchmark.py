@@ -22,6 +22,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -36,6 +37,11 @@ from dlmpc_ros.core.plants import NOMINAL, PHYSICS_FIELDS
 from dlmpc_ros.evaluation.closed_loop import run_closed_loop
 from dlmpc_ros.evaluation.metrics import first_hold
 from dlmpc_ros.learning.tables import envelope_objective
+
+if TYPE_CHECKING:
+    from dlmpc_ros.control.estimator import SurrogateEstimator
+    from dlmpc_ros.control.step import Controller
+    from dlmpc_ros.core.drift import Scenario
 
 DRIFTS = ('held', 'drift')
 
@@ -145,18 +151,28 @@ def run_starts(task: LockTask) -> list[dict]:
             controller = prototype.fresh()
         if estimator is None and getattr(controller, 'uses_estimator', False):
             estimator = load_estimator(models)
-        if estimator is not None:
-            estimator.reset()
-        record = run_closed_loop(controller, scenario, spec.budget, spec.period, angles,
-                                 cavity_config=spec.cavity, estimator=estimator,
-                                 initial='noise', initial_seed=noise_seed,
-                                 bench=BenchConfig(**spec.bench), noise_seed=noise_seed)
-        o = np.nan_to_num(record.O, nan=0.0)
-        locked = o >= spec.lock_fraction * envelope_objective(envelope, record.K)
-        start = first_hold(locked, 0, spec.hold_periods * spec.period)
-        out.append({'index': int(index), 'K': k0, 'locked': start is not None,
-                    'round_trips': None if start is None else int(start)})
+        out.append(run_start(controller, spec, envelope, index, scenario, estimator))
     return out
+
+
+def run_start(controller: Controller, spec: LockSpec, envelope: dict, index: int,
+              scenario: Scenario, estimator: SurrogateEstimator | None = None) -> dict:
+    """One cold start ``index`` of ``spec`` under ``controller`` on ``scenario`` (K from
+    the start's conditions): ``index``, ``K`` (at the start), ``locked``, ``round_trips``
+    (to the first hold of the lock level; None when none within the budget)."""
+    angles, k0, noise_seed = start_conditions(spec.seed, index)
+    k0 = k0 if spec.k is None else float(spec.k)
+    if estimator is not None:
+        estimator.reset()
+    record = run_closed_loop(controller, scenario, spec.budget, spec.period, angles,
+                             cavity_config=spec.cavity, estimator=estimator,
+                             initial='noise', initial_seed=noise_seed,
+                             bench=BenchConfig(**spec.bench), noise_seed=noise_seed)
+    o = np.nan_to_num(record.O, nan=0.0)
+    locked = o >= spec.lock_fraction * envelope_objective(envelope, record.K)
+    start = first_hold(locked, 0, spec.hold_periods * spec.period)
+    return {'index': int(index), 'K': k0, 'locked': start is not None,
+            'round_trips': None if start is None else int(start)}
 
 
 def lock_metrics(starts: list[dict], spec: LockSpec) -> dict:
