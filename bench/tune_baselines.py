@@ -321,16 +321,11 @@ def lock_starts(build: Callable, spec, envelope: dict) -> list[dict]:
     :func:`dlmpc_ros.evaluation.lock_benchmark.run_starts` runs them, with a controller
     from ``build(limits)`` per start; the same per-start dicts."""
     from dlmpc_ros.control.limits import AngleLimits
-    from dlmpc_ros.core.drift import Constant
-    from dlmpc_ros.evaluation.lock_benchmark import run_start, start_conditions
+    from dlmpc_ros.evaluation.lock_benchmark import run_start
     if spec.drift != 'held':
         raise ValueError('the tuning runs the held-K lock benchmark only')
     limits = AngleLimits(max_step=spec.max_step)
-    out = []
-    for index in range(spec.starts):
-        k0 = start_conditions(spec.seed, index)[1] if spec.k is None else float(spec.k)
-        out.append(run_start(build(limits), spec, envelope, index, Constant(offset=k0)))
-    return out
+    return [run_start(build(limits), spec, envelope, index) for index in range(spec.starts)]
 
 
 def lock_score(starts: list[dict], budget: int) -> float:

@@ -41,7 +41,6 @@ from dlmpc_ros.learning.tables import envelope_objective
 if TYPE_CHECKING:
     from dlmpc_ros.control.estimator import SurrogateEstimator
     from dlmpc_ros.control.step import Controller
-    from dlmpc_ros.core.drift import Scenario
 
 DRIFTS = ('held', 'drift')
 
@@ -137,13 +136,9 @@ def run_starts(task: LockTask) -> list[dict]:
     prototype = None
     out = []
     for index in task.indices:
-        angles, k0, noise_seed = start_conditions(spec.seed, index)
-        k0 = k0 if spec.k is None else float(spec.k)
-        scenario = (Constant(offset=k0) if spec.drift == 'held' else
-                    RandomWalk(offset=k0, sigma=0.05, correlation_time=5000.0,
-                               seed=noise_seed))
         if prototype is None:
-            controller = make_controller(spec.controller, models, limits, initial_k=k0,
+            controller = make_controller(spec.controller, models, limits,
+                                         initial_k=start_k(spec, index),
                                          dlmpc_config=task.config)
             if hasattr(controller, 'fresh'):  # models loaded once, a controller per start
                 prototype = controller
@@ -151,17 +146,25 @@ def run_starts(task: LockTask) -> list[dict]:
             controller = prototype.fresh()
         if estimator is None and getattr(controller, 'uses_estimator', False):
             estimator = load_estimator(models)
-        out.append(run_start(controller, spec, envelope, index, scenario, estimator))
+        out.append(run_start(controller, spec, envelope, index, estimator))
     return out
 
 
+def start_k(spec: LockSpec, index: int) -> float:
+    """The K that start ``index`` of ``spec`` begins at (``spec.k`` where it is set)."""
+    return start_conditions(spec.seed, index)[1] if spec.k is None else float(spec.k)
+
+
 def run_start(controller: Controller, spec: LockSpec, envelope: dict, index: int,
-              scenario: Scenario, estimator: SurrogateEstimator | None = None) -> dict:
-    """One cold start ``index`` of ``spec`` under ``controller`` on ``scenario`` (K from
-    the start's conditions): ``index``, ``K`` (at the start), ``locked``, ``round_trips``
-    (to the first hold of the lock level; None when none within the budget)."""
-    angles, k0, noise_seed = start_conditions(spec.seed, index)
-    k0 = k0 if spec.k is None else float(spec.k)
+              estimator: SurrogateEstimator | None = None) -> dict:
+    """One cold start ``index`` of ``spec`` under ``controller``: K held at
+    :func:`start_k` or drifting slowly around it (``spec.drift``); ``index``, ``K`` (at
+    the start), ``locked``, ``round_trips`` (to the first hold of the lock level; None
+    when none within the budget)."""
+    angles, _, noise_seed = start_conditions(spec.seed, index)
+    k0 = start_k(spec, index)
+    scenario = (Constant(offset=k0) if spec.drift == 'held' else
+                RandomWalk(offset=k0, sigma=0.05, correlation_time=5000.0, seed=noise_seed))
     if estimator is not None:
         estimator.reset()
     record = run_closed_loop(controller, scenario, spec.budget, spec.period, angles,
