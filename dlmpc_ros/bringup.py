@@ -58,7 +58,12 @@ NODES = {
     'recorder': ('dlmpc_ros.nodes.recorder_node', 'recorder.yaml'),
 }
 #: ``explore``: the DL-MPC exploring turns of its curve, to record a calibration bag.
-CONTROLLER_CHOICES = (*CONTROLLERS, 'explore', 'none')
+CONTROLLER_CHOICES = (*CONTROLLERS, 'dlmpc_paper', 'explore', 'none')
+#: Controller names that run the mpc_controller node (with the vae_estimator), and the
+#: node parameters each sets: ``dlmpc_paper`` is the node's ``strategy:=paper``, as the
+#: registered controller of that name is in dlmpc-evaluate.
+DLMPC_STRATEGIES: dict[str, dict] = {'dlmpc': {}, 'dlmpc_paper': {'strategy': 'paper'},
+                                     'explore': {'plan_explore': True}}
 #: Nodes that subscribe /laser/state (the simulator holds round trip 1 until they do).
 #: Topics each node publishes that the recorder waits for before the run starts.
 PUBLISHES = {
@@ -76,7 +81,7 @@ def controller_nodes(controller: str) -> list[str]:
     """Nodes that make up ``--controller``."""
     if controller == 'none':
         return []
-    if controller in ('dlmpc', 'explore'):
+    if controller in DLMPC_STRATEGIES:
         return ['vae_estimator', 'mpc_controller']
     return ['baseline_controller']
 
@@ -267,8 +272,8 @@ def build_graph(args: argparse.Namespace, env: dict[str, str], log_dir: Path) ->
                          'measurement_round_trips': args.measurement_round_trips}
             if args.models_dir is not None:
                 overrides['models_dir'] = str(args.models_dir.resolve())
-            if name == 'mpc_controller' and args.controller == 'explore':
-                overrides['plan_explore'] = True
+            if name == 'mpc_controller':
+                overrides.update(DLMPC_STRATEGIES[args.controller])
             overrides.update(args.controller_overrides)
             if name == 'baseline_controller':
                 overrides['controller'] = args.controller

@@ -267,6 +267,23 @@ def test_a_bringup_keeps_its_graph_to_itself(ros_env, tmp_path):
     assert third.returncode == 0
 
 
+@pytest.mark.parametrize('controller, nodes, strategy', [
+    ('dlmpc', ['vae_estimator', 'mpc_controller'], None),
+    ('dlmpc_paper', ['vae_estimator', 'mpc_controller'], 'paper'),
+    ('esc', ['baseline_controller'], None)])
+def test_a_controller_name_starts_its_nodes_with_its_settings(tmp_path, controller, nodes,
+                                                              strategy):
+    """dlmpc_paper in the bringup is the mpc_controller's strategy:=paper with its
+    estimator, as the registered controller of that name is in dlmpc-evaluate."""
+    from dlmpc_ros.bringup import build_graph, parse_args
+    graph = build_graph(parse_args(['--controller', controller]), {}, tmp_path)
+    started = {node.name: node.overrides for node in graph.nodes}
+    assert [n for n in started if n in ('vae_estimator', 'mpc_controller',
+                                        'baseline_controller')] == nodes
+    if 'mpc_controller' in started:
+        assert started['mpc_controller'].get('strategy') == strategy
+
+
 @pytest.mark.parametrize('discovery', ['localhost', 'subnet'])
 def test_the_graph_environment_holds_only_the_bringups_middleware_settings(discovery):
     from dlmpc_ros.bringup import graph_environment, parse_args
