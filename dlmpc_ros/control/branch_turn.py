@@ -23,8 +23,8 @@ Two checks make it safe on a laser that is not the simulator:
   pulse and the turn goes the way that brings the servos back toward the middle of their
   range);
 - the turn is a trial: ``verify`` periods after it, O is compared with O before it, and
-  unless the new branch gives ``branch_gain`` more, the laser is turned back (at once,
-  with ``landing_guard``, if O falls under ``turn_guard`` x its O before the turn while
+  unless the new branch gives ``branch_gain`` more, the laser is turned back (at once
+  if O falls under ``turn_guard`` x its O before the turn while
   it is on trial: a pulse that held on the way can still die where it lands).
 """
 
@@ -155,7 +155,7 @@ class BranchTurn:
         """This period's O -> the command of the turn (None while verifying: the tracker
         holds the new branch's point) and what the period ended with."""
         cfg = self.config
-        if (self._phase is TurnPhase.VERIFY and cfg.landing_guard
+        if (self._phase is TurnPhase.VERIFY
                 and not objective >= cfg.turn_guard * self._before):  # going where it landed
             self._retrace(TurnPhase.LANDED)
             self.lost_landing = True

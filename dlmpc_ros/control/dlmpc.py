@@ -98,17 +98,15 @@ class DLMPCController:
         lock_fraction = (cfg.acquisition or AcquisitionConfig()).lock_fraction
         self.acquisition: LockSupervisor | None = None
         self.tracker: CurveTracker | None = None
+        self.planner: RotationPlanner | None = None
         if target_objective is not None and curve is not None and cfg.tracking is not None:
+            if response is not None and cfg.planner is not None:
+                self.planner = RotationPlanner(response, cfg.planner, turn_correction)
             grid, angles, expected = curve
             self.tracker = CurveTracker(grid, angles, lock_fraction * target_objective,
-                                        cfg.tracking, expected, cfg.limits)
+                                        cfg.tracking, expected, cfg.limits, self.planner)
             if rotation_prior is not None:
                 self.tracker.rotation.start_from(*rotation_prior)
-        self.planner: RotationPlanner | None = None
-        if self.tracker is not None and response is not None and cfg.planner is not None:
-            self.planner = RotationPlanner(response, cfg.planner, turn_correction)
-            self.tracker.plan_rotation = self.planner.plan
-            self.tracker.retract_rotation = self.planner.retract
         if target_objective is not None and cfg.acquisition is not None:
             source = (MapScan(self.map_angles, cfg.acquisition.scan_points)
                       if self.tracker is None else

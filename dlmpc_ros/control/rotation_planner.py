@@ -58,9 +58,6 @@ class PlannerConfig:
     """Recent periods whose log E and log M are averaged as the predictor's input."""
     online: bool = True
     """Correct the predictor online from the run's own moves."""
-    online_magnitude: bool = True
-    """The online correction also learns a term in |turn|: how much less (or more) than
-    predicted any turn gains on this laser."""
     memory: int = 30
     """Recent moves the online correction is fit to."""
     turn_ridge: float = 1.0
@@ -94,34 +91,31 @@ class PlannerConfig:
 
 
 class OnlineCorrection:
-    """What the predictor got wrong on this laser: ``a + b * delta (+ c * |delta|)`` fit
+    """What the predictor got wrong on this laser: ``a + b * delta + c * |delta|`` fit
     (ridge least squares) to the errors of the last ``memory`` moves, added to later
     plans (the planner uses it less its value at 0, so ``a`` only absorbs what the drift
     of K did between the two measurements of a move). ``b`` learns a predictor that is
-    wrong about which way to turn; ``c`` (with ``magnitude``) one that is wrong about
-    whether turning pays at all, as on a laser whose best rotation is the curve's own.
+    wrong about which way to turn; ``c`` one that is wrong about whether turning pays at
+    all, as on a laser whose best rotation is the curve's own.
 
     ``prior`` (3,), a calibration's coefficients for this laser (``a, b, c``), is where the
     fit starts and what the ridge pulls it toward, with weight ``ridge`` (default: 0 and
     weight 1)."""
 
-    def __init__(self, memory: int, ridge: float = 1.0, magnitude: bool = True,
-                 prior: np.ndarray | None = None, turn_ridge: float = 1.0) -> None:
+    def __init__(self, memory: int, ridge: float = 1.0, prior: np.ndarray | None = None,
+                 turn_ridge: float = 1.0) -> None:
         self.moves: deque[tuple[float, float]] = deque(maxlen=memory)  # (delta, error)
-        self.magnitude = magnitude
-        terms = 3 if magnitude else 2
-        #: (terms,) ridge weight per term: ``ridge`` on a, ``ridge * turn_ridge`` on b, c
-        self.ridge = ridge * np.r_[1.0, np.full(terms - 1, turn_ridge)]
-        self.prior = np.zeros(terms) if prior is None else np.asarray(prior, float)[:terms]
-        if self.prior.shape != (terms,) or not np.all(np.isfinite(self.prior)):
+        #: (3,) ridge weight per term: ``ridge`` on a, ``ridge * turn_ridge`` on b and c
+        self.ridge = ridge * np.r_[1.0, turn_ridge, turn_ridge]
+        self.prior = np.zeros(3) if prior is None else np.asarray(prior, float)
+        if self.prior.shape != (3,) or not np.all(np.isfinite(self.prior)):
             raise ValueError(f'the correction prior must be 3 finite values, got {prior}')
         self.coefficients = self.prior.copy()
 
     def _terms(self, delta: np.ndarray) -> np.ndarray:
-        """(n, 2 or 3) regressors of turns (n,): 1, delta and |delta| in units of 0.1 rad."""
+        """(n, 3) regressors of turns (n,): 1, delta and |delta| in units of 0.1 rad."""
         d = np.asarray(delta, float).reshape(-1) / 0.1
-        columns = [np.ones_like(d), d] + ([np.abs(d)] if self.magnitude else [])
-        return np.stack(columns, axis=1)
+        return np.stack([np.ones_like(d), d, np.abs(d)], axis=1)
 
     def add(self, delta: float, error: float) -> None:
         """One move's turn and its error (measured minus predicted change of log O)."""
@@ -153,7 +147,7 @@ class RotationPlanner:
         calibrated = correction_prior is not None
         self.correction = OnlineCorrection(
             self.config.memory, ridge=self.config.prior_moves if calibrated else 1.0,
-            magnitude=self.config.online_magnitude, prior=correction_prior,
+            prior=correction_prior,
             turn_ridge=self.config.turn_ridge)
         self.moves = 0
         self.undone = 0

@@ -41,9 +41,9 @@ next time K comes by.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
+from typing import Protocol
 
 import numpy as np
 
@@ -99,15 +99,13 @@ class TrackingConfig:
     """Periods to wait after handing back before trying again (doubled, up to 64 x,
     after each failed entry)."""
     survey_ratio: float = 0.93
-    """O below this fraction of the curve's own steady O at the estimate, for
-    ``survey_patience`` periods, means the estimate sits on a plateau away from K: survey."""
-    survey_scale: str = 'own'
-    """'own': the survey level is ``survey_ratio`` x the curve's own steady O x the best
-    ratio of measured O to the curve's O over the last ``survey_cooldown`` periods of
-    tracking (the laser's own scale of O); 'curve': without that ratio (the nominal
-    cavity's scale, under which a laser with less O surveyed every ``survey_cooldown``
-    periods and one with more never did). Chosen on the development plants: 0.956
-    against 0.932 (``bench/results/survey_scale.md``)."""
+    """O below this fraction of the curve's own steady O at the estimate, on the laser's
+    own scale of O, for ``survey_patience`` periods means the estimate sits on a plateau
+    away from K: survey. The laser's scale is the best ratio of measured O to the
+    curve's O over the last ``survey_cooldown`` periods of tracking; without it a laser
+    with less O than the nominal cavity surveyed every ``survey_cooldown`` periods and one
+    with more never did (development plants 0.956 against 0.932,
+    ``bench/results/survey_scale.md``)."""
     survey_scale_window: int = 10
     """Each of those ratios is the mean over this many consecutive tracking periods (1: one
     period's): the best of 300 single noisy periods sits about three standard deviations
@@ -118,20 +116,13 @@ class TrackingConfig:
     survey_spacing: float = 0.05
     """Distance between the curve points the survey visits (K units)."""
     survey_dwell: int = 3
-    """Periods the survey waits at each point (twice that at the first)."""
-    survey_glide: bool = True
-    """The survey moves to its first point (the end of the curve nearest the estimate)
-    through the curve's points in between, ``survey_spacing`` apart, one per period,
-    instead of jumping there in one period; it still jumps back to the best point, where
-    a jump forms that point's own pulse. A jump of 0.25 rad costs a round trip under half
-    of O* (the nominal steps' relock, seed 2: 242 -> 61 round trips); development plants
-    0.9541 -> 0.9547, with 1 % noise 0.9503 -> 0.9514 (``bench/results/tracker_moves.md``;
-    gliding back as well lost 0.021)."""
+    """Periods the survey waits at each point (twice that at the first). The survey glides
+    to its first point (the curve's end nearest the estimate) through the points in
+    between, one per period, and jumps back to the best point, where a jump forms that
+    point's own pulse: a jump of 0.25 rad costs a round trip under half of O*
+    (``bench/results/tracker_moves.md``)."""
     survey_cooldown: int = 300
     """Periods after a survey before the next may start."""
-    mirror: bool = True
-    """Track on the curve's mirror twin where the estimate says K > 0 (False: on the curve
-    everywhere, as it was trained)."""
     mirror_margin: float = 0.03
     """How far past K = 0 the estimate must go before the tracker turns to the other
     branch (hysteresis, K units)."""
@@ -146,20 +137,17 @@ class TrackingConfig:
     is losing the pulse: the tracker turns back (and turns the other way next time).
     0.45 rather than 0.6: a weak pulse just formed from noise dips under 0.6 of its O on
     its own, and entry trials that would have reached the twin's 0.94 O* were given up
-    (0.45 for the entry trial's turn alone did no better on the drift runs;
+    (0.45 for the entry trial's turn alone did no better on the drift runs). While the
+    new branch is on trial after a turn, O under this fraction takes the laser back at
+    once rather than after ``verify`` periods (the pulse is going where the turn landed);
+    the way round is kept, and the next entries make no entry trial until a turn is kept
+    (a pulse at 0.8 O* was otherwise lost to the same trial at each entry;
     ``bench/results/entry_turn.md``)."""
     turn_reference: int = 3
     """The O before a turn, which its guard and its verification judge by, is the median
     of this many latest periods (1: the period's own O). A pulse just formed from noise
     swings by a factor of two between periods, and a turn begun on a crest was given up
     at the next trough (``bench/results/entry_turn.md``)."""
-    landing_guard: bool = True
-    """While the new branch is on trial after a turn, O under ``turn_guard`` x the O
-    before the turn takes the laser back at once (the pulse is going where the turn
-    landed) instead of after ``verify`` periods; the way round is kept (it kept the pulse
-    on the way), and the next entry makes no entry trial until a turn is kept (a pulse
-    at 0.8 O* was otherwise lost to the same trial at each entry;
-    ``bench/results/entry_turn.md``)."""
     turn_cooldown: int = 100
     """Periods after a turn (made or given up) before the next may start."""
     verify: int = 6
@@ -179,23 +167,16 @@ class TrackingConfig:
     tracker try the twin). Chosen with ``survey_scale_window`` on the development plants:
     1 % noise on E and M costs 0.004 with both, 0.017 with neither, at 0.002 without
     noise (``bench/results/noise_levels.md``)."""
-    entry_trial: bool = True
-    """``entry_trial_after`` periods after tracking began where the acquisition scan
-    locked, try the other branch once (the scan stops at the first point that passes the
-    lock level, which may be the weaker branch; the turn is kept only if it gains) ..."""
-    entry_trial_inner: bool = True
-    """Also try the other branch once after an entry from the inner loop (the laser
-    locked under the map's angles, and tracking began at ``start`` on the curve, which
-    may be the weaker branch). Development plants: 2 more cold starts of 200 locked with
-    a scan ``patience`` of 5, the same with 3 (scans then find the lock first); drift runs
-    0.9575 against 0.9570 (``bench/results/acquisition_pace.md``)."""
     entry_trial_after: int = 6
-    """Periods after the entry before the entry trial (``settle``, 20, before). A pulse
+    """Periods after an entry (from the scan or the inner loop) before the entry trial: the
+    other branch is tried once (the scan stops at the first point that passes the lock
+    level and the inner loop enters at ``start``, either of which may be the weaker
+    branch; the turn is kept only if it gains). A pulse
     the scan locked on the weaker branch at |K| = 0.28 fades to 0.3-0.45 O* within some
     7 periods, and the turn that keeps it carries it to the twin's 0.94 O*; the twin's
     own point does not start a pulse from noise there (``bench/results/entry_turn.md``)."""
     entry_trial_below: float = 0.8
-    """... if O is then under this fraction of the curve's own steady O at the estimate
+    """The entry trial is made only if O is then under this fraction of the curve's own steady O at the estimate
     (the O the curve gave on the simulator; without it, always; 0: never)."""
     plan_every: int = 4
     """Dither blocks between two requests for a turn of the curve (with a planner)."""
@@ -208,12 +189,8 @@ class TrackingConfig:
     next to yet, by the turn x exp(-(distance / rotation_spread)^2 / 2) (K units; 0: only
     the two knots around the point): what one point learned is the prior where K has not
     been. Into every knot, turns added up past the predictor's data (-0.87 rad) and a
-    development run lost 0.17. Chosen on the development plants with
-    ``forget_lost_turns`` (``bench/results/rotation_spread.md``)."""
-    forget_lost_turns: bool = True
-    """A planned turn after which the laser falls under the guard or loses its lock before
-    the planner has judged it (at its next plan) is taken back, in the curve's memory
-    too: otherwise the turn that lost the pulse stays where K will come by again."""
+    development run lost 0.17. Chosen on the development plants
+    (``bench/results/rotation_spread.md``)."""
 
     def __post_init__(self) -> None:
         if not (self.dither > 0 and 0 < self.min_step <= self.step <= self.max_step
@@ -236,8 +213,6 @@ class TrackingConfig:
             raise ValueError(f'trial_blocks must be >= 1, got {self.trial_blocks}')
         if self.survey_scale_window < 1:
             raise ValueError(f'survey_scale_window must be >= 1, got {self.survey_scale_window}')
-        if self.survey_scale not in ('curve', 'own'):
-            raise ValueError(f"survey_scale must be 'curve' or 'own', got {self.survey_scale!r}")
         if self.entry_trial_after < 0 or self.turn_reference < 1:
             raise ValueError('need entry_trial_after >= 0 and turn_reference >= 1')
         if not self.entry_trial_below >= 0:
@@ -278,6 +253,17 @@ TRACKER_TRANSITIONS = frozenset({
     (TrackerState.TURN, TrackerState.IDLE), (TrackerState.SURVEY, TrackerState.IDLE)})
 
 
+class TurnPlanner(Protocol):
+    """What plans the curve's turns (:class:`~dlmpc_ros.control.rotation_planner.RotationPlanner`)."""
+
+    def plan(self, u: float, theta: float, noise: float = 0.0) -> float:
+        """A further turn [rad] of the rotation ``theta`` at curve point ``u`` (0: hold),
+        ``noise`` the measurement noise read off the run."""
+
+    def retract(self) -> float:
+        """The last turn [rad] if it was not judged yet (0: none), which it then forgets."""
+
+
 class CurveTracker:
     """Per control period: None while the inner loop is in charge, else the angles (4,)
     [rad] on the curve.
@@ -287,12 +273,14 @@ class CurveTracker:
     which the laser counts as locked (E/M units); ``expected`` (n,), the steady O on the
     curve at each grid point, enables the survey (None: no survey). ``limits`` are the
     servo limits a change of branch must stay inside (default: :class:`AngleLimits`).
+    ``planner`` turns the curve every ``plan_every`` dither blocks (None: never).
     """
 
     def __init__(self, grid: np.ndarray, angles: np.ndarray, threshold: float,
                  config: TrackingConfig | None = None,
                  expected: np.ndarray | None = None,
-                 limits: AngleLimits | None = None) -> None:
+                 limits: AngleLimits | None = None,
+                 planner: TurnPlanner | None = None) -> None:
         self.grid, self.angles, self.expected = check_curve(grid, angles, expected)
         if not threshold > 0:
             raise ValueError(f'lock threshold must be > 0, got {threshold}')
@@ -301,7 +289,7 @@ class CurveTracker:
         self.limits = limits or AngleLimits()
         self.active = False
         self.branch = 1           # 1: on the curve; -1: on its mirror twin
-        self.turner = BranchTurn(self.config, self.limits, self._on_curve)
+        self.turner = BranchTurn(self.config, self.limits, self.on_curve)
         self._estimate_before_turn = 0.0
         self._locked = 0          # consecutive locked periods while not tracking
         self._recent: deque[float] = deque(maxlen=self.config.entry_patience)
@@ -316,11 +304,7 @@ class CurveTracker:
         self.rotation = CurveRotation(self.grid[0], self.grid[-1],
                                       self.config.rotation_knots, self.config.rotation_limit,
                                       self.config.rotation_spread)
-        #: ``(u, theta, noise) -> further turn [rad]`` asked every ``plan_every`` blocks
-        #: (None: the curve is never turned)
-        self.plan_rotation: Callable[[float, float, float], float] | None = None
-        #: ``() -> the planner's turn not yet judged [rad]`` (0: none), which it then forgets
-        self.retract_rotation: Callable[[], float] | None = None
+        self.planner = planner
         self._turn_at = 0.0  # the curve point u of the latest planned turn
         self.planned = 0.0
         self._survey_wait = 0
@@ -345,10 +329,10 @@ class CurveTracker:
         """The angles (4,) [rad] at parameter ``s`` (clipped to the grid) on the branch the
         tracker is on: the curve, or its twin ``c(-s) + pi/2``, turned by the learned
         rotation."""
-        on_curve = self._on_curve(self.branch * s)
+        on_curve = self.on_curve(self.branch * s)
         return on_curve if self.branch == 1 else on_curve + QUARTER_TURN
 
-    def _on_curve(self, u: float) -> np.ndarray:
+    def on_curve(self, u: float) -> np.ndarray:
         """The curve's angles (4,) [rad] at ``u`` (clipped to the grid), turned by the
         rotation learned there."""
         u = float(np.clip(u, self.grid[0], self.grid[-1]))
@@ -374,7 +358,7 @@ class CurveTracker:
         self._recentre()
         self.estimate = float(np.clip(estimate, self.grid[0], self.grid[-1]))
         self._entry_objective = float(objective) if np.isfinite(objective) else 0.0
-        self._entry_trial = self.config.entry_trial and self.config.mirror
+        self._entry_trial = True
 
     def interrupt(self) -> None:
         """Something else took over (the acquisition scan): stop and wait a cooldown."""
@@ -452,7 +436,7 @@ class CurveTracker:
         under the best such mean since the branch was chosen (and no turn is cooling
         down)."""
         cfg = self.config
-        if not cfg.mirror or self.turner.wait > 0:
+        if self.turner.wait > 0:
             return False
         # the trial's values and the best are cleared together: no values, no best yet
         values = self._trial_values
@@ -486,7 +470,7 @@ class CurveTracker:
             return False
         expected = self.expected_objective(self.estimate)
         level = self.config.survey_ratio * expected
-        if self.config.survey_scale == 'own' and expected > 0 and np.isfinite(objective):
+        if expected > 0 and np.isfinite(objective):
             self._scale_window.append(objective / expected)
             self._scale.append(sum(self._scale_window) / len(self._scale_window))
             # the laser's scale: the best recent ratio
@@ -501,8 +485,7 @@ class CurveTracker:
             points = points[::-1]
         self._survey, self._survey_seen = [float(p) for p in points], []
         self._dwell, self._short = -self.config.survey_dwell, 0  # first point: twice as long
-        self._approach = self._path(self.estimate, self._survey[0]) \
-            if self.config.survey_glide else []
+        self._approach = self._path(self.estimate, self._survey[0])
         return self.curve(self._approach[0] if self._approach else self._survey[0])
 
     def _path(self, start: float, end: float) -> list[float]:
@@ -541,8 +524,7 @@ class CurveTracker:
         self.active = True
         self._entry_objective = float(np.median(self._recent))
         self._recentre()
-        cfg = self.config
-        self._entry_trial = cfg.entry_trial and cfg.entry_trial_inner and cfg.mirror
+        self._entry_trial = True
         return self._command()
 
     def _recentre(self) -> None:
@@ -571,10 +553,11 @@ class CurveTracker:
         self._step, self._last_move = self.config.step, 0.0  # Rprop step and last sign
 
     def _forget_unjudged_turn(self) -> None:
-        """With ``forget_lost_turns``: take back the planner's latest turn if it has not
-        judged it yet (the laser lost what it had before the next plan)."""
-        if self.config.forget_lost_turns and self.retract_rotation is not None:
-            turn = self.retract_rotation()
+        """Take back the planner's latest turn if it has not judged it yet (the laser lost
+        what it had before the next plan), in the curve's memory too: otherwise the turn
+        that lost the pulse stays where K will come by again."""
+        if self.planner is not None:
+            turn = self.planner.retract()
             if turn:
                 self.rotation.move(self._turn_at, -turn)
                 self.planned = -float(turn)
@@ -633,10 +616,10 @@ class CurveTracker:
                     cfg.min_step, cfg.max_step)
                 self.estimate = float(np.clip(self.estimate + move, self.grid[0],
                                               self.grid[-1]))
-        if (self.plan_rotation is not None and self._age > cfg.settle
+        if (self.planner is not None and self._age > cfg.settle
                 and self._block_count % cfg.plan_every == 0):
             u = self.branch * self.estimate
-            turn = self.plan_rotation(u, self.rotation(u), self.noise())
+            turn = self.planner.plan(u, self.rotation(u), self.noise())
             if turn:
                 self.rotation.move(u, turn)
                 self.planned = float(turn)
@@ -667,7 +650,7 @@ class CurveScan:
     def pass_order(self, current: np.ndarray) -> list[ScanPoint]:
         order = []
         for u in self.points:
-            on_curve = self.tracker._on_curve(u)
+            on_curve = self.tracker.on_curve(u)
             pair = [ScanPoint(on_curve, 1, u), ScanPoint(on_curve + QUARTER_TURN, -1, -u)]
             pair.sort(key=lambda p: float(np.max(np.abs(wrap_angles(p.angles - current)))))
             order += pair

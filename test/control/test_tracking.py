@@ -13,6 +13,9 @@ from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.tracking import (TRACKER_TRANSITIONS, CurveTracker, TrackerState,
                                         TrackingConfig)
 from dlmpc_ros.core.symmetry import QUARTER_TURN
+
+#: ``entry_trial_after`` that never comes: tests of other turns leave the entry trial out
+NEVER = 10 ** 9
 from dlmpc_ros.learning.kmap import KMap, KMapConfig
 from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
 
@@ -67,7 +70,7 @@ def test_estimate_climbs_to_the_peak_and_follows_a_drifting_one():
 
 def test_a_block_is_judged_by_the_o_of_its_last_period():
     pattern = (0.2, 0.2, 0.3)                       # period by period, one block long
-    cfg = TrackingConfig(entry_patience=1, settle=0, block=3, mirror=False)
+    cfg = TrackingConfig(entry_patience=1, settle=0, block=3)
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
     for t in range(60):
         tracker.step(pattern[t % 3])
@@ -91,12 +94,13 @@ def test_the_noise_deadband_reads_the_noise_off_the_run_and_holds_the_estimate_a
     without noise it tracks as before."""
     def run(noise_deadband: float, noise: float, seed: int, k: float = -0.1):
         rng = np.random.default_rng(seed)
-        cfg = TrackingConfig(entry_patience=1, settle=0, mirror=False, start=-0.1,
+        cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1,
                              noise_deadband=noise_deadband)
-        tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg)
-        tracker.plan_rotation = lambda u, theta, noise: planned.append(
-            noise - tracker.noise()) or 0.0
-        o, estimates, planned = 0.2 - (0.1 + k) ** 2, [], []
+        planned: list[float] = []
+        planner = _NoisePlanner(planned)
+        tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg, planner=planner)
+        planner.tracker = tracker
+        o, estimates = 0.2 - (0.1 + k) ** 2, []
         for _ in range(2000):
             command = tracker.step(o)
             o = (0.2 - (command[0] / 2 - k) ** 2) * (1 + noise * rng.standard_normal())
@@ -133,59 +137,65 @@ def test_guard_recentres_then_hands_back_and_waits_a_growing_cooldown():
     assert tracker._cooldown == 20
 
 
+class _NoisePlanner:
+    """A planner that never turns and records the noise it is told less the tracker's."""
+
+    def __init__(self, told: list[float]) -> None:
+        self.told, self.tracker = told, None
+
+    def plan(self, u: float, theta: float, noise: float = 0.0) -> float:
+        self.told.append(noise - self.tracker.noise())
+        return 0.0
+
+    def retract(self) -> float:
+        return 0.0
+
+
+def _peak_moved_away(s: float, t: int, start: float) -> float:
+    """A toy laser whose peak sits at ``start`` for 50 periods, then (K jumped) at
+    s = 0.2 with a plateau of 0.17 for s < 0.05."""
+    if t < 50:
+        return 0.2 - 0.3 * (s - start) ** 2
+    return 0.17 if s < 0.05 else 0.2 - 0.3 * (s - 0.2) ** 2
+
+
 def test_survey_leaves_a_plateau_for_the_best_point_of_the_curve():
-    """A landscape flat around the start and peaked far from it: the local dither cannot
-    see the peak, the survey finds it (on the curve's scale of O: this toy laser never
-    shows more than its plateau, so on its own scale it would not survey)."""
+    """K jumps and leaves the laser on a plateau (0.85 of what it showed) with the peak
+    far away: the local dither cannot see the peak, the survey finds it."""
     cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.2, survey_patience=10,
-                         survey_spacing=0.05, survey_dwell=2, survey_scale='curve')
+                         survey_spacing=0.05, survey_dwell=2)
     expected = np.full(GRID.size, 0.2)
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg, expected=expected)
-
-    def plateau(cmd):
-        s = cmd[0] / 2
-        return 0.17 if s < 0.05 else 0.2 - 0.3 * (s - 0.2) ** 2
-
     o = 0.2
-    for _ in range(200):
-        cmd = tracker.step(o)
-        o = plateau(cmd)
+    for t in range(250):
+        o = _peak_moved_away(tracker.step(o)[0] / 2, t, cfg.start)
     assert tracker.active and abs(tracker.estimate - 0.2) < 0.06
     assert o > 0.19
     # without the curve's expected O there is no survey: it stays on the plateau
     stuck = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
     o = 0.2
-    for _ in range(200):
-        cmd = stuck.step(o)
-        o = plateau(cmd)
+    for t in range(250):
+        o = _peak_moved_away(stuck.step(o)[0] / 2, t, cfg.start)
     assert stuck.estimate < 0.0
 
 
-def test_a_gliding_survey_reaches_its_first_point_through_the_curve_s_points():
-    """A jump of the servos to the curve's end costs a dip of O; with ``survey_glide`` the
-    survey reaches its first point one ``survey_spacing`` per period, then visits the
-    curve as before and finds the same peak."""
-    def survey_moves(glide: bool) -> tuple[list[float], float]:
-        cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0, survey_patience=10,
-                             survey_spacing=0.05, survey_dwell=2, survey_scale='curve',
-                             mirror=False, survey_glide=glide)
-        tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg,
-                               expected=np.full(GRID.size, 0.2))
-        o, s, moves = 0.2, None, []
-        for _ in range(200):
-            cmd = tracker.step(o)
-            surveying = bool(tracker._survey)
-            if surveying and s is not None:
-                moves.append(abs(cmd[0] / 2 - s))
-            s = cmd[0] / 2
-            o = 0.17 if s < 0.05 else 0.2 - 0.3 * (s - 0.2) ** 2
-        return moves, tracker.estimate
-
-    jumped, found = survey_moves(False)
-    glided, found_gliding = survey_moves(True)
-    assert max(jumped) > 0.2                       # to the curve's end in one period
-    assert max(glided) <= 0.05 + 1e-9
-    assert abs(found - 0.2) < 0.06 and abs(found_gliding - 0.2) < 0.06
+def test_the_survey_glides_to_its_first_point_through_the_curve_s_points():
+    """A jump of the servos to the curve's end costs a dip of O: the survey reaches its
+    first point (0.3 away) one ``survey_spacing`` per period, then visits the curve and
+    finds the peak; it jumps back to the best point only."""
+    cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0, survey_patience=10,
+                         survey_spacing=0.05, survey_dwell=2)
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg,
+                           expected=np.full(GRID.size, 0.2))
+    o, s, moves = 0.2, None, []
+    for t in range(250):
+        cmd = tracker.step(o)
+        if tracker.state is TrackerState.SURVEY and s is not None:
+            moves.append(abs(cmd[0] / 2 - s))
+        s = cmd[0] / 2
+        o = _peak_moved_away(s, t, cfg.start)
+    assert len(moves) > 6 + 2 * 13 and max(moves) <= 0.05 + 1e-9
+    assert abs(tracker.estimate - 0.2) < 0.06
 
 
 def test_the_survey_level_can_follow_the_laser_s_own_scale_of_o():
@@ -194,30 +204,24 @@ def test_the_survey_level_can_follow_the_laser_s_own_scale_of_o():
     scale (the best O / curve O it showed lately) it never does."""
     expected = np.full(GRID.size, 0.2)
 
-    def surveys(scale: str) -> int:
-        cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0, survey_patience=10,
-                             survey_cooldown=50, mirror=False, survey_scale=scale)
-        tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg, expected=expected)
-        o, started = 0.14, 0
-        for _ in range(600):
-            before = bool(tracker._survey)
-            o = 0.7 * _objective(tracker.step(o), 0.0)
-            started += bool(tracker._survey) and not before
-        return started
-
-    assert surveys('curve') >= 3
-    assert surveys('own') == 0
-    # on its own scale it still surveys when its O falls under what it showed lately
     cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0, survey_patience=10,
-                         survey_cooldown=200, mirror=False)
+                         survey_cooldown=50)
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg, expected=expected)
+    o, started = 0.14, 0
+    for _ in range(600):
+        before = tracker.state is TrackerState.SURVEY
+        o = 0.7 * _objective(tracker.step(o), 0.0)
+        started += tracker.state is TrackerState.SURVEY and not before
+    assert started == 0
+    # it still surveys when its O falls under what it showed lately
+    cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0, survey_patience=10,
+                         survey_cooldown=200)
     tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg, expected=expected)
     o, surveyed = 0.14, False
     for t in range(400):
         o = (0.7 if t < 200 else 0.6) * _objective(tracker.step(o), 0.0)
         surveyed |= t >= 200 and bool(tracker._survey)
     assert surveyed
-    with pytest.raises(ValueError, match='survey_scale'):
-        TrackingConfig(survey_scale='nominal')
 
 
 def test_noise_alone_does_not_make_a_small_fall_of_o_look_like_a_plateau():
@@ -227,7 +231,7 @@ def test_noise_alone_does_not_make_a_small_fall_of_o_look_like_a_plateau():
     expected = np.full(GRID.size, 0.2)
 
     def surveys(window: int, noise: float) -> int:
-        cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0, mirror=False,
+        cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0,
                              survey_scale_window=window)
         tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg, expected=expected)
         rng, o, started = np.random.default_rng(3), 0.2, 0
@@ -295,7 +299,7 @@ def _drive_mirrored(tracker: CurveTracker, k_of_period, periods: int,
 
 def test_tracker_turns_to_the_mirror_twin_when_k_drifts_through_zero():
     # entered from the inner loop; the entry's own trial of the twin is another test's
-    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, entry_trial_inner=False)
+    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, entry_trial_after=NEVER)
     drift = lambda t: -0.15 + 0.3 * min(t / 2500, 1.0)          # noqa: E731
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
     states: list[TrackerState] = []
@@ -313,8 +317,9 @@ def test_tracker_turns_to_the_mirror_twin_when_k_drifts_through_zero():
     assert np.mean(o[-100:]) > 0.19
     # the turns kept the pulse (the toy's O falls to 0.1 halfway round at |K| = 0.1)
     assert o[200:].min() > 0.16
-    # without the mirror it stays on the curve and pays for it
-    plain = CurveTracker(GRID, ANGLES, threshold=0.1, config=replace(cfg, mirror=False))
+    # a tracker that never changes branch stays on the curve and pays for it
+    plain = CurveTracker(GRID, ANGLES, threshold=0.1,
+                         config=replace(cfg, mirror_margin=1.0, trial_drop=0.0))
     o_plain, _, _ = _drive_mirrored(plain, drift, 3000)
     assert plain.branch == 1 and np.mean(o_plain[-100:]) < 0.186
 
@@ -324,7 +329,7 @@ def test_where_the_estimate_says_nothing_a_fall_of_o_makes_the_tracker_try_the_t
     often sits at the curve's end whatever K is): the estimate never leaves its start, K
     drifts through 0, O falls on the curve, and the tracker tries the twin and keeps it."""
     # entered from the inner loop; the entry's own trial of the twin is another test's
-    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, entry_trial_inner=False)
+    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, entry_trial_after=NEVER)
     drift = lambda t: -0.15 + 0.35 * min(t / 2500, 1.0)          # noqa: E731
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
     o, _, branch = _drive_mirrored(tracker, drift, 3000, curvature=0.0)
@@ -344,7 +349,7 @@ def test_noise_alone_makes_the_tracker_try_the_twin_less_where_the_trial_average
     they end turns in other ways, and this is about what starts them.)"""
     def trials(blocks: int) -> int:
         cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.15, trial_blocks=blocks,
-                             survey_ratio=1e-6, turn_reference=1, landing_guard=False)
+                             survey_ratio=1e-6, turn_reference=1)
         tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
         rng, o, current = np.random.default_rng(5), 0.2, None
         for _ in range(6000):
@@ -366,8 +371,9 @@ def test_after_an_acquisition_lock_the_tracker_tries_the_other_branch_once():
     entry trial finds the twin and keeps it; without it the tracker stays."""
     cfg = TrackingConfig(settle=5, start=-0.1, trial_drop=0.0, mirror_margin=0.5)
     for entry_trial, branch, low, high in ((True, -1, 0.195, 1.0), (False, 1, 0.0, 0.186)):
+        after = cfg.entry_trial_after if entry_trial else NEVER
         tracker = CurveTracker(GRID, ANGLES, threshold=0.1,
-                               config=replace(cfg, entry_trial=entry_trial))
+                               config=replace(cfg, entry_trial_after=after))
         tracker.enter_at(-0.1, 1, 0.185)
         o, _, _ = _drive_mirrored(tracker, lambda t: 0.15, 300, curvature=0.0)
         assert tracker.branch == branch, entry_trial
@@ -386,14 +392,16 @@ def test_after_an_acquisition_lock_the_tracker_tries_the_other_branch_once():
     assert doubtful.branch == -1
 
 
-def test_with_entry_trial_inner_an_entry_from_the_inner_loop_tries_the_other_branch_too():
+def test_an_entry_from_the_inner_loop_tries_the_other_branch_too():
     """The laser locked under the inner loop and tracking began at ``start`` on the curve,
-    the weaker branch at K = 0.15: only with ``entry_trial_inner`` is the twin tried."""
+    the weaker branch at K = 0.15: the entry trial finds the twin; without it the tracker
+    stays."""
     cfg = TrackingConfig(settle=5, start=-0.1, trial_drop=0.0, mirror_margin=0.5,
                          entry_patience=1)
     for inner, branch in ((True, -1), (False, 1)):
+        after = cfg.entry_trial_after if inner else NEVER
         tracker = CurveTracker(GRID, ANGLES, threshold=0.1,
-                               config=replace(cfg, entry_trial_inner=inner))
+                               config=replace(cfg, entry_trial_after=after))
         o, _, _ = _drive_mirrored(tracker, lambda t: 0.15, 300, curvature=0.0)
         assert tracker.active and tracker.branch == branch, inner
         assert tracker.turner.made + tracker.turner.rejected == int(inner)
@@ -406,7 +414,7 @@ def test_a_turn_that_loses_the_pulse_is_turned_back_and_tried_the_other_way():
     simulator's direction starts losing O, the tracker turns back before O falls far,
     and after the cooldown turns the other way, onto the twin."""
     cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, turn_cooldown=30,
-                         mirror_margin=0.2, entry_trial_inner=False)
+                         mirror_margin=0.2, entry_trial_after=NEVER)
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
     tracker.turner.direction = 1.0                                  # the wrong way here
     ramp = lambda t: -0.1 + 0.35 * min(max(t - 300, 0) / 200, 1.0)  # noqa: E731
@@ -467,25 +475,24 @@ def test_a_turn_begun_on_a_crest_of_o_is_judged_by_the_median_of_the_latest_peri
 
 def test_a_turn_whose_pulse_goes_where_it_landed_is_taken_back_at_once():
     """The turn keeps O on the way, but at its landing point O falls under the turn
-    guard: with ``landing_guard`` the laser is turned back in the next period (the way
-    round is kept, and the next entry makes no trial), without it only after the
-    ``verify`` periods."""
+    guard: the laser is turned back in the next period, not after the ``verify`` periods
+    (the way round is kept, and the next entry makes no trial); O above the guard is
+    verified."""
     steps = int(np.ceil(QUARTER_TURN / TrackingConfig().turn_step - 1e-9))
-    for guard in (True, False):
-        cfg = TrackingConfig(landing_guard=guard, verify=6)
+    cfg = TrackingConfig(verify=6)
+    for landing, lost in ((0.05, True), (0.2, False)):
         turner = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg).turner
         assert turner.begin(ANGLES[20], GRID[20], 0.2)
         events = [turner.step(0.2)[1] for _ in range(steps)]
         assert events[-1] is TurnEvent.ARRIVED
-        command, event = turner.step(0.05)          # the pulse is going at the landing
-        if guard:
+        command, event = turner.step(landing)
+        if lost:                                     # the pulse is going at the landing
             assert command is not None and turner.lost_landing
             back = [turner.step(0.05)[1] for _ in range(steps - 1)]
             assert back[-1] is TurnEvent.ABANDONED and turner.abandoned == 1
             assert turner.direction == -1.0          # the way round that kept the pulse
         else:
             assert command is None and event is TurnEvent.NONE and not turner.lost_landing
-            assert [turner.step(0.05)[0] for _ in range(cfg.verify - 1)][-1] is not None
 
 
 def test_a_turn_stays_inside_the_servo_limits():
