@@ -176,8 +176,9 @@ class TrackingConfig:
     7 periods, and the turn that keeps it carries it to the twin's 0.94 O*; the twin's
     own point does not start a pulse from noise there (``bench/results/entry_turn.md``)."""
     entry_trial_below: float = 0.8
-    """The entry trial is made only if O is then under this fraction of the curve's own steady O at the estimate
-    (the O the curve gave on the simulator; without it, always; 0: never)."""
+    """The entry trial is made only if O is then under this fraction of the curve's own
+    steady O at the estimate (the O the curve gave on the simulator; without it, always;
+    0: never)."""
     plan_every: int = 4
     """Dither blocks between two requests for a turn of the curve (with a planner)."""
     rotation_knots: int = 13
@@ -254,7 +255,8 @@ TRACKER_TRANSITIONS = frozenset({
 
 
 class TurnPlanner(Protocol):
-    """What plans the curve's turns (:class:`~dlmpc_ros.control.rotation_planner.RotationPlanner`)."""
+    """What plans the curve's turns
+    (:class:`~dlmpc_ros.control.rotation_planner.RotationPlanner`)."""
 
     def plan(self, u: float, theta: float, noise: float = 0.0) -> float:
         """A further turn [rad] of the rotation ``theta`` at curve point ``u`` (0: hold),

@@ -13,11 +13,11 @@ from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.tracking import (TRACKER_TRANSITIONS, CurveTracker, TrackerState,
                                         TrackingConfig)
 from dlmpc_ros.core.symmetry import QUARTER_TURN
+from dlmpc_ros.learning.kmap import KMap, KMapConfig
+from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
 
 #: ``entry_trial_after`` that never comes: tests of other turns leave the entry trial out
 NEVER = 10 ** 9
-from dlmpc_ros.learning.kmap import KMap, KMapConfig
-from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
 
 GRID = np.linspace(-0.3, 0.3, 61)
 #: A toy curve whose first angle is twice its parameter, so a command tells its s.
