@@ -14,7 +14,7 @@ Usage::
         --out bench/results/ablation.json --workers 2
 
 ``variants.json`` maps names to overrides, e.g. ``{"shipped": {}, "no planner":
-{"planner": null}, "no twin": {"tracking": {"mirror": false}}, "noisy":
+{"planner": null}, "no survey": {"tracking": {"survey_patience": 1000000}}, "noisy":
 {"measurement_noise": 0.01}, "other models": {"models_dir": "out/models"}}``
 (``tracking``, ``acquisition`` and ``planner`` take the fields of their configs;
 ``measurement_noise`` is the run's relative noise on the measured E and M, and
