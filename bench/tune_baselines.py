@@ -131,6 +131,10 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument('--threads', type=int, default=1, help='numba threads (default 1)')
     p.add_argument('--storage', metavar='URL',
                    help='Optuna storage (e.g. sqlite:///tune.db) to keep or resume the study')
+    p.add_argument('--confirm', type=Path, metavar='STUDY_JSON',
+                   help="no study: run a study's best and shipped settings (its "
+                        "OUT/<method>.json) on this run's starts and drift seeds, which "
+                        "should differ from the study's; writes OUT/<method>_confirm.{json,md}")
     p.add_argument('--models-dir', type=Path, default=ROOT / 'models',
                    help='model files (the nominal envelope, models/oracle.npz)')
     p.add_argument('--out', type=Path, default=ROOT / 'bench' / 'results' / 'tune_baselines')
@@ -522,18 +526,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     threads = numba.get_num_threads()
     numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
     try:
-        return study(args, argv)
+        return confirm(args, argv) if args.confirm else study(args, argv)
     finally:
         numba.set_num_threads(threads)
 
 
-def study(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
-    """The study of ``args`` (numba's threads already set)."""
-    import optuna
-
+def load_plants(args: argparse.Namespace) -> list[Plant]:
+    """The chosen development plants with their envelopes."""
     from dlmpc_ros.learning.tables import load_baselines
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
-    started = time.monotonic()
     tables = load_baselines(args.models_dir / 'oracle.npz')
     plants = []
     for name in args.plants:
@@ -541,6 +541,69 @@ def study(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
         plants.append(resolve_plant(name, tables))
         print(f'plant {plants[-1].label}: envelope ready ({time.monotonic() - t0:.0f} s)',
               flush=True)
+    return plants
+
+
+def confirm(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
+    """A study's best and shipped settings, each on this run's starts and drift seeds."""
+    from dlmpc_ros.control.esc import ESCConfig
+    from dlmpc_ros.control.ga import GAConfig
+    started = time.monotonic()
+    study_record = json.loads(args.confirm.read_text())
+    if study_record['method'] != args.method:
+        raise SystemExit(f"--confirm {args.confirm}: a {study_record['method']} study, "
+                         f'not {args.method}')
+    kind = GAConfig if args.method == 'ga' else ESCConfig
+    plants = load_plants(args)
+    rows = {}
+    for name in ('shipped', 'best'):
+        trial = study_record[name]
+        config = kind(**trial['settings'])
+        t0 = time.monotonic()
+        rows[name] = {'trial': trial['number'], 'settings': trial['settings'],
+                      'study_value': trial['value'],
+                      'values': evaluate(args, config, plants),
+                      'wall_s': round(time.monotonic() - t0, 1)}
+        v = rows[name]['values']
+        print(f"{name} (trial {trial['number']}): {v['objective']:.3f} (locked "
+              f"{v['locked']}/{v['starts']}, drift {v['drift_ratio']})", flush=True)
+    command = 'python bench/tune_baselines.py ' + ' '.join(sys.argv[1:] if argv is None
+                                                            else argv)
+    record = {'method': args.method, 'command': command, 'study': _shown(args.confirm),
+              'settings': {k: (_shown(v) if isinstance(v, Path) else v)
+                           for k, v in vars(args).items()},
+              'rows': rows, 'wall_s': round(time.monotonic() - started, 1)}
+    args.out.mkdir(parents=True, exist_ok=True)
+    json_path = args.out / f'{args.method}_confirm.json'
+    json_path.write_text(json.dumps(record, indent=1, default=str))
+    lines = [f'# Confirming the {args.method.upper()} study', '', f'`{command}`', '',
+             f"Cold starts of seed {args.lock_seed} ({args.starts} per plant, budget "
+             f"{args.budget}), drift seeds {', '.join(map(str, args.drift_seed))}: not the "
+             'study\'s.', '',
+             '| settings | study objective | objective here | lock score | locked | '
+             'drift O/O* | ' + ' | '.join(p.label for p in plants) + ' |',
+             '|---|---|---|---|---|---|' + '---|' * len(plants)]
+    for name, row in rows.items():
+        v = row['values']
+        cells = [f"{p['locked']}/{p['starts']}, {p['drift_ratio']:.3f}"
+                 if p['drift_ratio'] is not None else f"{p['locked']}/{p['starts']}"
+                 for p in v['plants'].values()]
+        drift = '-' if v['drift_ratio'] is None else f"{v['drift_ratio']:.3f}"
+        lines.append(f"| {name} (trial {row['trial']}) | {row['study_value']:.3f} | "
+                     f"{v['objective']:.3f} | {v['lock_score']:.3f} | "
+                     f"{v['locked']}/{v['starts']} | {drift} | " + ' | '.join(cells) + ' |')
+    (args.out / f'{args.method}_confirm.md').write_text('\n'.join(lines) + '\n')
+    print(f'tune_baselines: wrote {json_path} ({time.monotonic() - started:.0f} s)')
+    return 0
+
+
+def study(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
+    """The study of ``args`` (numba's threads already set)."""
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    started = time.monotonic()
+    plants = load_plants(args)
     settle = None
     if args.method == 'ga':
         if args.settle_round_trips is not None:

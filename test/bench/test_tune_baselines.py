@@ -55,6 +55,16 @@ def test_two_trials_write_the_record(tmp_path, method, extra, capsys):
     summary = (tmp_path / f'{method}.md').read_text()
     assert 'smoke run' in summary and '(shipped)' in summary
     assert '[2/2]' in capsys.readouterr().out
+    # --confirm runs the study's shipped and best settings again, on other starts
+    study = tmp_path / f'{method}.json'
+    assert tb.main(['--method', method, *TINY, '--lock-seed', '2', '--confirm', str(study),
+                    '--out', str(tmp_path)]) == 0
+    confirmed = json.loads((tmp_path / f'{method}_confirm.json').read_text())
+    assert set(confirmed['rows']) == {'shipped', 'best'}
+    for name, row in confirmed['rows'].items():
+        assert row['settings'] == record[name]['settings']
+        assert set(row['values']['plants']) == {'nominal'}
+    assert '| shipped (trial 0) |' in (tmp_path / f'{method}_confirm.md').read_text()
 
 
 def test_the_lock_runner_is_the_lock_benchmarks():
