@@ -461,10 +461,13 @@ def summary_markdown(record: dict) -> str:
              f"{record['pruner']}. {record['wall_s']:.0f} s in all"
              + (f", {record['wall_s_per_complete_trial']:.1f} s per complete trial."
                 if record['wall_s_per_complete_trial'] else '.'), '']
-    if len(trials) < 30 or len(record['plants']) < len(DEVELOPMENT):
-        lines += ['**A smoke run, not a tuning**: too few trials or plants to change the '
-                  'shipped settings (a study: 50+ trials on all nine development plants).',
-                  '']
+    if len(trials) < 10:
+        lines += ['**A smoke run, not a tuning**: too few trials to change the shipped '
+                  'settings (a study: 50+ trials on all nine development plants).', '']
+    elif len(trials) < 50 or len(record['plants']) < len(DEVELOPMENT):
+        lines += [f"**A reduced study** ({len(trials)} trials on {len(record['plants'])} of "
+                  f'the {len(DEVELOPMENT)} development plants): its best changes a default '
+                  'only where `--confirm` on other cold starts and drift seeds agrees.', '']
     if record['settle_round_trips'] is not None:
         per = ', '.join(f"{k} {v['settle']['round_trips']:.0f} (median "
                         f"{v['settle']['median_round_trips']:.0f}, {v['settle']['settled']}/"

@@ -30,30 +30,32 @@ from dlmpc_ros.core.angles import wrap_angles
 
 @dataclass(frozen=True)
 class GAConfig:
-    """Settings of the genetic algorithm (defaults of the size bench GAs use)."""
+    """Settings of the genetic algorithm: population and generations of the size bench GAs
+    use, the rest tuned on the development plants (an Optuna study,
+    ``bench/results/tune_baselines/ga.md``, confirmed on other cold starts)."""
 
     population: int = 10
     """Individuals per generation."""
-    generations: int = 5
+    generations: int = 6
     """Generations of one search."""
-    elite: int = 2
+    elite: int = 1
     """Best individuals copied unchanged into the next generation."""
-    tournament: int = 3
+    tournament: int = 5
     """Individuals drawn per tournament; the fittest is a parent."""
-    crossover: float = 0.7
+    crossover: float = 0.37
     """Chance that two parents are crossed (uniform crossover) rather than copied."""
-    mutation: float = 0.25
+    mutation: float = 0.51
     """Chance per angle of a Gaussian mutation."""
-    mutation_sigma: float = 0.2
+    mutation_sigma: float = 0.065
     """Standard deviation of a mutation [rad]."""
-    dwell: int = 2
+    dwell: int = 1
     """Periods an individual is held after the servos arrived, before its O is read."""
     travel_periods: int = 8
     """Periods after which an individual counts as arrived even if the servos are not
     there (a setting outside the angle limits)."""
     arrive_tolerance: float = 1e-3
     """Largest angle gap [rad] at which the servos count as arrived."""
-    patience: int = 3
+    patience: int = 8
     """Generations without a gain in the best fitness that end a search early."""
     lock_objective: float = 0.1
     """O at and above which the best individual counts as mode-locked and is held (about

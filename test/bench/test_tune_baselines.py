@@ -104,8 +104,9 @@ def test_the_search_spaces_hold_valid_settings():
     for frequencies in tb.FREQUENCY_SETS.values():
         ESCConfig(frequencies=frequencies)
     assert tb.FREQUENCY_SETS['shipped'] == tuple(ESCConfig().frequencies)
+    from dlmpc_ros.control.ga import GAConfig
     for settle in (1.0, 10.0, 40.0):
-        assert tb.ga_settings(tb.ga_shipped(settle), settle).dwell == 2
+        assert tb.ga_settings(tb.ga_shipped(settle), settle).dwell == GAConfig().dwell
     slow = {**tb.ga_shipped(10.0), 'dwell_factor': 2.0}
     assert tb.ga_settings(slow, 100.0).dwell == 20
 

@@ -26,13 +26,18 @@ def _drive(ga: GAController, periods: int, shift=lambda t: 0.0):
 
 
 def test_ga_finds_and_holds_a_good_setting_within_the_servo_limits():
-    ga = GAController(GAConfig(population=12, generations=8, lock_objective=0.05, seed=1),
-                      AngleLimits(max_step=0.25))
-    angles, seen = _drive(ga, 1500)
-    assert ga.holding and ga.searches >= 1
-    assert ga.evaluations >= 12 and ga.best_fitness >= 0.1
-    assert np.mean(seen[-100:]) >= 0.1  # it holds what it found
-    assert np.abs(np.diff(np.array(seen))).max() < 1  # sanity: finite objective trace
+    """On every seed it finds at least 0.4 of the toy's peak (0.2) and holds it, on
+    average more than half."""
+    found = []
+    for seed in range(4):
+        ga = GAController(GAConfig(population=12, generations=8, lock_objective=0.05,
+                                   seed=seed), AngleLimits(max_step=0.25))
+        angles, seen = _drive(ga, 1500)
+        assert ga.holding and ga.searches >= 1 and ga.evaluations >= 12
+        assert np.mean(seen[-100:]) == pytest.approx(ga.best_fitness, rel=0.05)  # it holds
+        assert np.abs(np.diff(np.array(seen))).max() < 1  # sanity: finite objective trace
+        found.append(ga.best_fitness)
+    assert min(found) >= 0.08 and np.mean(found) >= 0.1, found
 
 
 def test_ga_searches_again_when_the_held_objective_falls():
