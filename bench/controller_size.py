@@ -1,0 +1,101 @@
+"""How big the DL-MPC is to read (issue 32's design targets), measured from the code.
+
+Prints, and with ``--out`` writes as JSON:
+
+- **settings**: the fields of the controller's config classes (``DLMPCConfig``,
+  ``TrackingConfig``, ``AcquisitionConfig``, ``PlannerConfig``, ``AngleLimits``; the
+  nested configs themselves not counted), and the ``mpc_controller`` node's own
+  parameters (those of its base class, common to every controller node, left out);
+- **control law**: the lines of ``dlmpc_ros/control/`` without the baselines (ESC, GA,
+  BO, DRL and its observation, the table baselines) and the plug-in registry
+  (``plugins.py``, ``factory.py``);
+- **per-period path**: the modules a control period runs through, from the node's
+  callback to the published command (``PER_PERIOD``, read off the code: the node, its
+  base class, the period's measurement, the supervisor and its modes, their parts, the
+  learned models' forward passes), and their lines.
+
+Usage::
+
+    python bench/controller_size.py [--out bench/results/controller_size.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import fields, is_dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+CONTROL = ROOT / 'dlmpc_ros' / 'control'
+#: control/ modules that are not the DL-MPC's control law.
+NOT_CONTROL_LAW = {'__init__.py', 'esc.py', 'ga.py', 'bo.py', 'drl.py', 'observation.py',
+                   'baselines.py', 'plugins.py', 'factory.py'}
+#: Modules a DL-MPC control period runs through, callback to published command.
+PER_PERIOD = ('nodes/mpc_controller_node.py', 'ros/controller_base.py',
+              'control/period_measurement.py', 'control/dlmpc.py', 'control/modes.py',
+              'control/acquisition.py', 'control/tracking.py', 'control/branch_turn.py',
+              'control/rotation.py', 'control/rotation_planner.py', 'control/planner.py',
+              'control/step.py', 'control/limits.py', 'learning/features.py',
+              'learning/kmap.py', 'learning/mprnn.py', 'learning/response.py')
+
+
+def lines(path: Path) -> int:
+    return len(path.read_text().splitlines())
+
+
+def settings() -> dict[str, list[str]]:
+    """Config class -> its setting names (nested configs left out)."""
+    sys.path.insert(0, str(ROOT))
+    from dlmpc_ros.control.acquisition import AcquisitionConfig
+    from dlmpc_ros.control.dlmpc_config import DLMPCConfig
+    from dlmpc_ros.control.limits import AngleLimits
+    from dlmpc_ros.control.rotation_planner import PlannerConfig
+    from dlmpc_ros.control.tracking import TrackingConfig
+    out = {}
+    for kind in (DLMPCConfig, TrackingConfig, AcquisitionConfig, PlannerConfig, AngleLimits):
+        nested = {f.name for f in fields(kind) if f.name in ('limits', 'acquisition',
+                                                             'tracking', 'planner')}
+        out[kind.__name__] = [f.name for f in fields(kind) if f.name not in nested]
+        assert is_dataclass(kind)
+    return out
+
+
+def node_parameters() -> list[str]:
+    from dlmpc_ros.nodes import mpc_controller_node as node
+    return sorted({'strategy', *node.DEFAULTS, *node.ACQUISITION_DEFAULTS,
+                   *node.TRACKING_DEFAULTS, *node.PLANNER_DEFAULTS})
+
+
+def measure() -> dict:
+    per_class = settings()
+    law = {p.name: lines(p) for p in sorted(CONTROL.glob('*.py'))
+           if p.name not in NOT_CONTROL_LAW}
+    path = {m: lines(ROOT / 'dlmpc_ros' / m) for m in PER_PERIOD}
+    return {'settings': {k: len(v) for k, v in per_class.items()},
+            'settings_total': sum(len(v) for v in per_class.values()),
+            'setting_names': per_class,
+            'node_parameters': node_parameters(),
+            'control_law_lines': sum(law.values()), 'control_law': law,
+            'per_period_modules': len(path), 'per_period_lines': sum(path.values()),
+            'per_period': path}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    p.add_argument('--out', type=Path, help='write the figures as JSON here')
+    args = p.parse_args(argv)
+    m = measure()
+    print(f"settings: {m['settings_total']} ("
+          + ', '.join(f'{k} {v}' for k, v in m['settings'].items())
+          + f"); node parameters: {len(m['node_parameters'])}")
+    print(f"control law: {m['control_law_lines']} lines in {len(m['control_law'])} modules")
+    print(f"per-period path: {m['per_period_modules']} modules, {m['per_period_lines']} lines")
+    if args.out:
+        args.out.write_text(json.dumps(m, indent=1) + '\n')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
