@@ -31,8 +31,8 @@ not say which side of 0 K is on, and the measured O does.
 The curve was made on the nominal cavity; on the laser in front of it the curve is
 turned by a learned rotation theta(u) (all four angles together, a different turn at
 each point of the curve; :mod:`dlmpc_ros.control.rotation`). Every ``plan_every`` dither
-blocks the tracker asks its ``plan_rotation(u, theta, noise)`` (the DL-MPC's rotation
-planner, :mod:`dlmpc_ros.control.rotation_planner`; ``noise`` the measurement noise it
+blocks the tracker asks the planner it was built with for ``plan(u, theta, noise)`` (the
+DL-MPC's :mod:`~dlmpc_ros.control.rotation_planner`; ``noise`` the measurement noise it
 read off the run, :meth:`CurveTracker.noise`) for a further turn at the current point,
 applies it and starts its dither afresh. What is learned at a point stays there for the
 next time K comes by.
