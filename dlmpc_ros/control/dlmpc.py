@@ -12,15 +12,17 @@ priority order and the first that decides acts:
 2. ``track``: once it is locked, the curve tracker (:mod:`~dlmpc_ros.control.tracking`,
    on by default) moves it onto the best branch-continuous angle curve and follows K
    along it by extremum seeking on the measured O;
-3. ``outer``: the MP-RNN predicts the next N states for a plan of N future angle sets,
-   seeded by the previous plan (or by the map through the predicted K), and the plan is
-   improved by gradient ascent on the summed predicted objective
-   (:mod:`~dlmpc_ros.control.planner`). The number of ascent iterations grows by one
-   after an accurate prediction and shrinks after a poor one. The first planned angles
-   are applied (receding horizon);
-4. ``inner`` (while the history is shorter than the MP-RNN needs, and whenever the
-   predictor's recent one-step error passes ``error_threshold``): the surrogate through
-   the K-to-angles map;
+3. ``outer`` (without a tracking curve only, as in the paper's loops ``strategy:=paper``:
+   beside the tracker its plans changed nothing measurable on the stress suite,
+   ``bench/results/stress_ablation.md``): the MP-RNN predicts the next N states for a plan
+   of N future angle sets, seeded by the previous plan (or by the map through the
+   predicted K), and the plan is improved by gradient ascent on the summed predicted
+   objective (:mod:`~dlmpc_ros.control.planner`). The number of ascent iterations grows
+   by one after an accurate prediction and shrinks after a poor one. The first planned
+   angles are applied (receding horizon);
+4. ``inner`` (while the tracker is not in charge; in the paper's loops while the history
+   is shorter than the MP-RNN needs and whenever the predictor's recent one-step error
+   passes ``error_threshold``): the surrogate through the K-to-angles map;
 5. ``hold``: with no surrogate (a silent estimator) the angles are held.
 
 The predictor is scored only while it plans, so the outer loop, once its error has
@@ -115,11 +117,12 @@ class DLMPCController:
                                               cfg.acquisition, cfg.limits)
         self.monitor = PredictionMonitor(mprnn, cfg)
         self.outer = OuterLoop(self.monitor, cfg)
+        # with a tracker the MP-RNN does not plan (module docstring, point 3)
         self.modes: list[Mode] = [
             *([AcquireMode(self.acquisition, self.tracker)]
               if self.acquisition is not None else []),
-            *([TrackMode(self.tracker)] if self.tracker is not None else []),
-            self.outer, InnerLoop(self.map_angles), HoldMode()]
+            *([TrackMode(self.tracker)] if self.tracker is not None else [self.outer]),
+            InnerLoop(self.map_angles), HoldMode()]
 
     def fresh(self) -> DLMPCController:
         """A controller with the same models and settings and no history."""
