@@ -9,10 +9,10 @@ Prints, and with ``--out`` writes as JSON:
 - **control law**: the lines of ``dlmpc_ros/control/`` without the baselines (ESC, GA,
   BO, DRL and its observation, the table baselines) and the plug-in registry
   (``plugins.py``, ``factory.py``);
-- **per-period path**: the modules a control period runs through, from the node's
-  callback to the published command (``PER_PERIOD``, read off the code: the node, its
-  base class, the period's measurement, the supervisor and its modes, their parts, the
-  learned models' forward passes), and their lines.
+- **per-period path**: the modules a control period of the default strategy runs
+  through, from the node's callback to the published command (``PER_PERIOD``, read off
+  the code: the node, its base class, the period's measurement, the supervisor and its
+  modes, their parts, the learned models' forward passes), and their lines.
 
 Usage::
 
@@ -32,13 +32,14 @@ CONTROL = ROOT / 'dlmpc_ros' / 'control'
 #: control/ modules that are not the DL-MPC's control law.
 NOT_CONTROL_LAW = {'__init__.py', 'esc.py', 'ga.py', 'bo.py', 'drl.py', 'observation.py',
                    'baselines.py', 'plugins.py', 'factory.py'}
-#: Modules a DL-MPC control period runs through, callback to published command.
+#: Modules a control period of the default strategy runs through, callback to published
+#: command (the paper's loops add ``control/planner.py`` and ``learning/mprnn.py``).
 PER_PERIOD = ('nodes/mpc_controller_node.py', 'ros/controller_base.py',
               'control/period_measurement.py', 'control/dlmpc.py', 'control/modes.py',
               'control/acquisition.py', 'control/tracking.py', 'control/branch_turn.py',
-              'control/rotation.py', 'control/rotation_planner.py', 'control/planner.py',
-              'control/step.py', 'control/limits.py', 'learning/features.py',
-              'learning/kmap.py', 'learning/mprnn.py', 'learning/response.py')
+              'control/rotation.py', 'control/rotation_planner.py', 'control/step.py',
+              'control/limits.py', 'learning/features.py', 'learning/kmap.py',
+              'learning/response.py')
 
 
 def lines(path: Path) -> int:
