@@ -57,16 +57,18 @@ PLANNER_DEFAULTS: dict[str, object] = {
 }
 DESCRIPTIONS = {
     'strategy': f'one of {STRATEGIES}: dlmpc, the shipped controller (lock acquisition, '
-                'curve tracking, planned turns, with the paper\'s loops under them); paper, '
+                'curve tracking, planned turns, the VAE + map before the first lock); paper, '
                 'the paper\'s DL-MPC alone (VAE + map inner loop, MP-RNN outer loop; the '
                 'acquire, track and plan parameters are then ignored)',
-    'min_iterations': 'fewest gradient-ascent iterations per plan',
-    'max_iterations': 'most gradient-ascent iterations per plan',
-    'start_iterations': 'iterations of the first plan',
-    'learning_rate': 'Adam step of the plan optimization [rad]',
-    'error_threshold': 'recent one-step prediction error (normalized) above which the '
-                       'VAE + map inner loop takes over',
-    'accurate_error': 'prediction errors below this count as accurate (more iterations)',
+    'min_iterations': 'MP-RNN outer loop (strategy paper, or track false): fewest '
+                      'gradient-ascent iterations per plan',
+    'max_iterations': 'MP-RNN outer loop: most gradient-ascent iterations per plan',
+    'start_iterations': 'MP-RNN outer loop: iterations of the first plan',
+    'learning_rate': 'MP-RNN outer loop: Adam step of the plan optimization [rad]',
+    'error_threshold': 'MP-RNN outer loop: recent one-step prediction error (normalized) '
+                       'above which the VAE + map inner loop takes over',
+    'accurate_error': 'MP-RNN outer loop: prediction errors below this count as accurate '
+                      '(more iterations)',
     'acquire': 'scan the map for mode-locking while the measured O says the laser is off '
                'its pulse',
     'lock_fraction': 'locked when O >= this x the mean O of the map training targets',
