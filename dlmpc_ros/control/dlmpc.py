@@ -115,13 +115,17 @@ class DLMPCController:
                       CurveScan(self.tracker, cfg.acquisition.curve_points))
             self.acquisition = LockSupervisor(lock_fraction * target_objective, source,
                                               cfg.acquisition, cfg.limits)
-        self.monitor = PredictionMonitor(mprnn, cfg)
-        self.outer = OuterLoop(self.monitor, cfg)
-        # with a tracker the MP-RNN does not plan (module docstring, point 3)
+        # with a tracker the MP-RNN does not plan (module docstring, point 3), and nothing
+        # scores its forecasts
+        self.monitor: PredictionMonitor | None = None
+        self.outer: OuterLoop | None = None
+        if self.tracker is None:
+            self.monitor = PredictionMonitor(mprnn, cfg)
+            self.outer = OuterLoop(self.monitor, cfg)
         self.modes: list[Mode] = [
             *([AcquireMode(self.acquisition, self.tracker)]
               if self.acquisition is not None else []),
-            *([TrackMode(self.tracker)] if self.tracker is not None else [self.outer]),
+            TrackMode(self.tracker) if self.tracker is not None else self.outer,
             InnerLoop(self.map_angles), HoldMode()]
 
     def fresh(self) -> DLMPCController:
@@ -137,7 +141,10 @@ class DLMPCController:
 
     def warm_up(self) -> None:
         """Run one forward and backward pass on zeros (no state touched), so that the first
-        real plan does not pay torch's one-off start-up cost in the middle of a run."""
+        real plan does not pay torch's one-off start-up cost in the middle of a run (nothing
+        to do where the MP-RNN never plans)."""
+        if self.outer is None:
+            return
         history = torch.zeros(1, self.model.min_history(), 10)  # (1, N + 2b, features)
         plan = torch.zeros(1, self.model.config.horizon, 4, requires_grad=True)
         self.model(history, plan).objective.sum().backward()
@@ -154,15 +161,18 @@ class DLMPCController:
             surrogate = None  # no VAE latent is that far out: treat it as no estimate
         if self.planner is not None:
             self.planner.observe(measurement[0], measurement[1])
-        x = features(torch.as_tensor(measurement, dtype=torch.float32), self.norm)  # (10,)
-        error = self.monitor.observe(x)
+        error = float('nan')  # of the MP-RNN's forecast for this period
+        if self.monitor is not None:
+            x = features(torch.as_tensor(measurement, dtype=torch.float32), self.norm)  # (10,)
+            error = self.monitor.observe(x)
         period = Period(
             current=measurement[2:6],
             objective=measurement[0] / measurement[1] if measurement[1] > 0 else float('nan'),
             surrogate=float('nan') if surrogate is None else float(surrogate))
         decision = self._decide(period)
         angles = self.config.limits.apply(period.current, decision.angles)
-        self.monitor.expect(decision.predicted_next)
+        if self.monitor is not None:
+            self.monitor.expect(decision.predicted_next)
         reported = period.surrogate if decision.surrogate is None else decision.surrogate
         return ControlStep(angles=angles, mode=decision.mode, surrogate=reported,
                            prediction_error=error,
