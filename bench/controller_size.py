@@ -24,10 +24,11 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from dataclasses import fields, is_dataclass
+from dataclasses import fields
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 CONTROL = ROOT / 'dlmpc_ros' / 'control'
 #: control/ modules that are not the DL-MPC's control law.
 NOT_CONTROL_LAW = {'__init__.py', 'esc.py', 'ga.py', 'bo.py', 'drl.py', 'observation.py',
@@ -48,7 +49,6 @@ def lines(path: Path) -> int:
 
 def settings() -> dict[str, list[str]]:
     """Config class -> its setting names (nested configs left out)."""
-    sys.path.insert(0, str(ROOT))
     from dlmpc_ros.control.acquisition import AcquisitionConfig
     from dlmpc_ros.control.dlmpc_config import DLMPCConfig
     from dlmpc_ros.control.limits import AngleLimits
@@ -59,7 +59,6 @@ def settings() -> dict[str, list[str]]:
         nested = {f.name for f in fields(kind) if f.name in ('limits', 'acquisition',
                                                              'tracking', 'planner')}
         out[kind.__name__] = [f.name for f in fields(kind) if f.name not in nested]
-        assert is_dataclass(kind)
     return out
 
 
