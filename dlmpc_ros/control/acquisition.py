@@ -4,18 +4,18 @@ Off a pulse the measurement says little about K (a continuous-wave or noisy fiel
 alike for every K), so the surrogate and the map are no guide, and the angles they give
 may hold the laser off the pulse for ever. The supervisor watches the measured objective
 O = E/M against a lock threshold (a fraction of the mean O of the map's own training
-targets: no K; and, once the laser has shown what it can do, ``relock_fraction`` of the
-best O it measured recently, a maximum that decays by ``level_decay`` per period: a laser
+targets: no K; and, once the laser has shown what it can do, ``RELOCK_FRACTION`` of the
+best O it measured recently, a maximum that decays by ``LEVEL_DECAY`` per period: a laser
 that is not the nominal cavity has its own scale of O, and a state far under its own
 best has lost its pulse for another) and, after ``patience`` unlocked periods
 (``relock_patience`` once it has been locked in the run), scans a list of candidate
 angle sets from a :class:`ScanSource`, dwelling ``dwell_periods`` at each once the servos
-are there, until O has stayed at the threshold for ``confirm_periods``. Then control
+are there, until O reaches the threshold. Then control
 goes back to the DL-MPC's modes, told which point locked
 (:attr:`LockSupervisor.locked_at`). The scan's points are reached inside the servo range
-less ``turn_room``, so the tracker's quarter turns between branches fit either way round.
+less ``TURN_ROOM``, so the tracker's quarter turns between branches fit either way round.
 
-Two sources: the tracking curve and its mirror twin at ``curve_points`` (the curve
+Two sources: the tracking curve and its mirror twin at ``CURVE_POINTS`` (the curve
 tracker's :class:`~dlmpc_ros.control.tracking.CurveScan`: points that start a pulse from
 noise at every K on the simulator, and the tracker enters right where the scan locked),
 and, without a curve, the map's angles for a fixed list of surrogate values
@@ -38,9 +38,38 @@ from dlmpc_ros.core import checks
 from dlmpc_ros.core.angles import wrap_angles
 
 
+#: Surrogate values the map scan visits (equal-probability quantiles of the VAE prior).
+SCAN_POINTS = 9
+#: Largest angle gap [rad] at which the servos count as arrived at a scan point.
+ARRIVE_TOLERANCE = 1e-3
+#: Periods after which a scan point counts as reached even if the servos are not there
+#: (a point outside the angle limits).
+TRAVEL_PERIODS = 20
+#: Also unlocked: O under this fraction of the laser's own recent best.
+RELOCK_FRACTION = 0.6
+#: Per-period decay of that recent best (to 0.6 of it in 1,000 periods).
+LEVEL_DECAY = 0.9995
+#: The recent best is of the median O of this many latest periods (a pulse forming from
+#: noise overshoots for a period or two; that spike is not the laser's level).
+LEVEL_WINDOW = 3
+#: Room [rad] the scan leaves every servo from the ends of its range: it takes each point
+#: at its pi-equivalent nearest the servo inside ``[low + TURN_ROOM, high - TURN_ROOM]`` of
+#: the angle limits, so that the quarter turn (pi/2) of the tracker's change of branch
+#: fits either way round where the laser locks (servos that wound toward an end blocked
+#: the turn that keeps the pulse).
+TURN_ROOM = 2.0
+#: Parameters u on the tracking curve (K units) the curve scan visits, each with its
+#: mirror twin, in this order (from the simulator: c(-0.25) starts a pulse from noise at
+#: every K it was tried at).
+CURVE_POINTS = (-0.25, -0.3, -0.2, -0.15, -0.1, -0.05, 0.0)
+
+
 @dataclass(frozen=True)
 class AcquisitionConfig:
-    """Settings of the lock supervisor (times in control periods, angles in radians)."""
+    """Settings of the lock supervisor (times in control periods). The scan lets go at the
+    first period at the lock level (waiting for a second locked 4 more of 100 cold starts
+    on one development plant and lost 0.005 on the family's random walks,
+    ``bench/results/acquisition_confirm.md``)."""
 
     lock_fraction: float = 0.5
     """Locked when O >= lock_fraction x the mean O of the map's training targets."""
@@ -58,51 +87,12 @@ class AcquisitionConfig:
     (``bench/results/acquisition_pace.md``)."""
     dwell_periods: int = 3
     """Periods the scan waits at each point once the servos are there."""
-    scan_points: int = 9
-    """Surrogate values scanned (equal-probability quantiles of the VAE prior)."""
-    arrive_tolerance: float = 1e-3
-    """Largest angle gap [rad] at which the servos count as arrived at a scan point."""
-    travel_periods: int = 20
-    """Periods after which a scan point counts as reached even if the servos are not
-    there (a point outside the angle limits)."""
-    relock_fraction: float = 0.6
-    """Also unlocked: O under this fraction of the laser's own recent best (0: off)."""
-    level_decay: float = 0.9995
-    """Per-period decay of that recent best (0.9995: to 0.6 in 1,000 periods)."""
-    level_window: int = 3
-    """The recent best is of the median O of this many latest periods (a pulse forming
-    from noise overshoots for a period or two; that spike is not the laser's level)."""
-    confirm_periods: int = 1
-    """Consecutive periods at the lock level before the scan lets go (a period over it
-    while the servos travel between points can be a transient that dies at once). 2
-    locked 4 more of 100 cold starts on one development plant and lost 0.005 on the
-    family's random walks (``bench/results/acquisition_confirm.md``): 1 by default."""
-    turn_room: float = 2.0
-    """Room [rad] the scan leaves every servo from the ends of its range: it takes each
-    point at its pi-equivalent nearest the servo inside ``[low + turn_room, high -
-    turn_room]`` of the angle limits, so that the quarter turn (pi/2) of the tracker's
-    change of branch fits either way round where the laser locks (0: the equivalent
-    nearest the servo, wherever it is; servos that wound toward an end blocked the turn
-    that keeps the pulse)."""
-    curve_points: tuple[float, ...] = (-0.25, -0.3, -0.2, -0.15, -0.1, -0.05, 0.0)
-    """Parameters u on the tracking curve (K units) the curve scan visits, each with its
-    mirror twin, in this order (from the simulator: c(-0.25) starts a pulse from noise at
-    every K it was tried at)."""
 
     def __post_init__(self) -> None:
         if not 0 < self.lock_fraction < 1:
             raise ValueError(f'lock_fraction must be in (0, 1), got {self.lock_fraction}')
-        if min(self.patience, self.relock_patience, self.dwell_periods, self.scan_points,
-               self.travel_periods, self.level_window, self.confirm_periods) < 1:
-            raise ValueError('patience, relock_patience, dwell_periods, scan_points, '
-                             'travel_periods, level_window and confirm_periods must be >= 1')
-        checks.positive(self, 'arrive_tolerance')
-        if not (np.isfinite(self.turn_room) and self.turn_room >= 0):
-            raise ValueError(f'turn_room must be >= 0 rad, got {self.turn_room}')
-        if not self.curve_points or not np.all(np.isfinite(self.curve_points)):
-            raise ValueError('curve_points must be a non-empty list of finite values')
-        if not (0 <= self.relock_fraction < 1 and 0 < self.level_decay <= 1):
-            raise ValueError('need 0 <= relock_fraction < 1 and 0 < level_decay <= 1')
+        if min(self.patience, self.relock_patience, self.dwell_periods) < 1:
+            raise ValueError('patience, relock_patience and dwell_periods must be >= 1')
 
 
 @dataclass(frozen=True)
@@ -161,7 +151,7 @@ class LockSupervisor:
     locked; ``source`` gives the points of each pass of the scan. In the period O passes
     the threshold under the scan, :attr:`locked_at` is the point the scan was at or on
     its way to (else None). With ``limits`` (the servos' :class:`AngleLimits`) the scan
-    keeps ``config.turn_room`` from the ends of their range."""
+    keeps ``TURN_ROOM`` from the ends of their range."""
 
     def __init__(self, threshold: float, source: ScanSource,
                  config: AcquisitionConfig | None = None,
@@ -175,8 +165,7 @@ class LockSupervisor:
         self.unlocked = 0
         self.was_locked = False  # whether the laser has been locked in this run
         self.level = 0.0  # the laser's recent best O (a decaying maximum)
-        self._latest: deque[float] = deque(maxlen=self.config.level_window)  # finite O
-        self._locked_run = 0  # consecutive locked periods
+        self._latest: deque[float] = deque(maxlen=LEVEL_WINDOW)  # finite O
         self.locked_at: ScanPoint | None = None
         self._order: list[ScanPoint] = []
         self._target: ScanPoint | None = None
@@ -186,8 +175,8 @@ class LockSupervisor:
         self.travelling = False
 
     def locked(self, objective: float) -> bool:
-        """Whether O is at the lock threshold and at ``relock_fraction`` of the level."""
-        threshold = max(self.threshold, self.config.relock_fraction * self.level)
+        """Whether O is at the lock threshold and at ``RELOCK_FRACTION`` of the level."""
+        threshold = max(self.threshold, RELOCK_FRACTION * self.level)
         return bool(np.isfinite(objective) and objective >= threshold)
 
     def step(self, objective: float, current: np.ndarray, surrogate: float) -> np.ndarray | None:
@@ -196,13 +185,8 @@ class LockSupervisor:
         if np.isfinite(objective):
             self._latest.append(float(objective))
             self.level = max(float(np.median(self._latest)),
-                             self.level * self.config.level_decay)
+                             self.level * LEVEL_DECAY)
         locked = self.locked(objective)
-        self._locked_run = self._locked_run + 1 if locked else 0
-        if locked and self._target is not None \
-                and self._locked_run < self.config.confirm_periods:
-            # over the level while scanning: hold course until it has lasted
-            return self._toward(np.asarray(current, float))
         if locked:
             self.was_locked = True
             self.source.note_locked(surrogate)
@@ -218,12 +202,12 @@ class LockSupervisor:
 
     def _toward(self, current: np.ndarray) -> np.ndarray:
         """The command toward the scan's point (4,) [rad]: the point itself where its
-        pi-equivalent nearest ``current`` lies inside the limits less ``turn_room``, else
+        pi-equivalent nearest ``current`` lies inside the limits less ``TURN_ROOM``, else
         a step under pi/2 toward the nearest equivalent inside them (the servo limits take
         the equivalent nearest the servo, so a farther one is reached in such steps)."""
         angles = self._target.angles
-        room = self.config.turn_room
-        if self.limits is None or room <= 0:
+        room = TURN_ROOM
+        if self.limits is None:
             return angles
         low, high = self.limits.low + room, self.limits.high - room
         if high - low < np.pi:  # too narrow a range to choose
@@ -237,8 +221,8 @@ class LockSupervisor:
     def _arrived(self, current: np.ndarray) -> bool:
         """Whether the servos are at the scan's point (or have travelled long enough)."""
         gap = wrap_angles(current - self._target.angles)  # pi-periodic
-        return (float(np.max(np.abs(gap))) <= self.config.arrive_tolerance
-                or self._travel >= self.config.travel_periods)
+        return (float(np.max(np.abs(gap))) <= ARRIVE_TOLERANCE
+                or self._travel >= TRAVEL_PERIODS)
 
     def _scan(self, current: np.ndarray) -> np.ndarray:
         if self._target is not None:

@@ -40,7 +40,8 @@ import time
 import numpy as np
 import torch
 
-from dlmpc_ros.control.acquisition import AcquisitionConfig, LockSupervisor, MapScan
+from dlmpc_ros.control.acquisition import (CURVE_POINTS, SCAN_POINTS, AcquisitionConfig,
+                                           LockSupervisor, MapScan)
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.rotation_planner import RotationPlanner
 from dlmpc_ros.control.modes import (AcquireMode, Decision, HoldMode, InnerLoop, Mode,
@@ -110,9 +111,8 @@ class DLMPCController:
             if rotation_prior is not None:
                 self.tracker.rotation.start_from(*rotation_prior)
         if target_objective is not None and cfg.acquisition is not None:
-            source = (MapScan(self.map_angles, cfg.acquisition.scan_points)
-                      if self.tracker is None else
-                      CurveScan(self.tracker, cfg.acquisition.curve_points))
+            source = (MapScan(self.map_angles, SCAN_POINTS) if self.tracker is None
+                      else CurveScan(self.tracker, CURVE_POINTS))
             self.acquisition = LockSupervisor(lock_fraction * target_objective, source,
                                               cfg.acquisition, cfg.limits)
         # with a tracker the MP-RNN does not plan (module docstring, point 3), and nothing
