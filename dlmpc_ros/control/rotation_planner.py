@@ -4,17 +4,17 @@ While the curve tracker holds the laser on its curve, every ``plan_every`` dithe
 (:class:`~dlmpc_ros.control.tracking.TrackingConfig`) the planner asks the
 steady-response predictor (:mod:`dlmpc_ros.learning.response`) what further turns
 ``delta`` of the curve at the current point would do to the settled O, given the rotation
-there and the E and M measured (averaged over the last ``measurements`` periods), and
+there and the E and M measured (averaged over the last ``MEASUREMENTS`` periods), and
 picks the turn within the trust radius that maximizes the predicted gain less
 ``spread_penalty`` times the ensemble's spread (a plan the members disagree on leaves the
-data they were trained on). It moves only when that beats ``min_gain`` and, under
+data they were trained on). It moves only when that beats ``MIN_GAIN`` and, under
 measurement noise, the noise of the move's own measured gain; else it holds.
 After each move it compares the O measured once the laser settled with the O before,
 against the prediction, and learns a correction of the predictor for this laser online
 (:class:`OnlineCorrection`: a least-squares line in ``delta``, fit to the run's own
 moves, that the next plans add, starting from what a calibration from a bag found, if
 any): the predictor is the prior, the laser corrects it. A
-move after which O fell under ``undo_below`` of what it was is taken back at once.
+move after which O fell under ``UNDO_BELOW`` of what it was is taken back at once.
 Planning costs one small forward pass of the ensemble.
 """
 
@@ -32,67 +32,59 @@ if TYPE_CHECKING:  # torch-based: the caller loads it
     from dlmpc_ros.learning.response import ResponseEnsemble
 
 
+#: Turns tried per plan, evenly over [-radius, radius].
+CANDIDATES = 21
+#: Smallest predicted gain of log O that is worth a move (0.01 did no better on the
+#: development plants, ``bench/results/planner_gate.md``).
+MIN_GAIN = 0.002
+#: Recent periods whose log E and log M are averaged as the predictor's input.
+MEASUREMENTS = 3
+#: Recent moves the online correction is fit to.
+MEMORY = 30
+#: Weight of a calibrated correction (``turn_correction.npz`` of ``dlmpc-train adapt``), in
+#: moves of the run: the online fit is pulled toward it as strongly as toward this many
+#: moves (without one it is pulled toward 0 with weight 1).
+PRIOR_MOVES = 10.0
+#: A move after which O fell under this fraction of its O before is taken back.
+UNDO_BELOW = 0.85
+
+
 @dataclass(frozen=True)
 class PlannerConfig:
-    """Settings of the rotation planner (times in control periods)."""
+    """Settings of the rotation planner."""
 
     radius: float = 0.1
     """Trust radius: the largest turn of one plan [rad]."""
-    candidates: int = 21
-    """Turns tried per plan, evenly over [-radius, radius]."""
     spread_penalty: float = 1.0
     """Weight of the ensemble's spread against its mean predicted gain (2 stops the turns
     of the nominal cavity's curve but loses 0.008 on the held-out plants;
     ``bench/results/planner_gate.md``)."""
-    min_gain: float = 0.002
-    """Smallest predicted gain of log O that is worth a move."""
     noise_gate: float = 1.0
     """Under measurement noise a move must also be predicted to gain more than this many
     standard deviations of the noise of its own measured gain (the change of the mean log
-    O of ``measurements`` periods, ``noise * sqrt(2 / measurements)``, ``noise`` the one
+    O of ``MEASUREMENTS`` periods, ``noise * sqrt(2 / MEASUREMENTS)``, ``noise`` the one
     period's noise the tracker reads off the run; 0: off): the undo and the online
     correction could not tell such a move's effect from the noise. Chosen on the
     development plants: 1 % noise on E and M cost the nominal sinusoid 0.007 with it,
     0.025 without, the family plants as much either way (``bench/results/noise_gate.md``)."""
-    measurements: int = 3
-    """Recent periods whose log E and log M are averaged as the predictor's input."""
     online: bool = True
     """Correct the predictor online from the run's own moves."""
-    memory: int = 30
-    """Recent moves the online correction is fit to."""
-    turn_ridge: float = 1.0
-    """Weight of the pull of the correction's terms in the turn (``b``, ``c``) toward their
-    start, against that of its intercept ``a`` (1: the same): above 1, the errors of the
-    first few moves go mostly into ``a`` (what K's drift did between a move's two
-    measurements) until the moves show which turns pay."""
-    prior_moves: float = 10.0
-    """Weight of a calibrated correction (``turn_correction.npz`` of ``dlmpc-train
-    adapt``), in moves of the run: the online fit is pulled toward it as strongly as
-    toward this many moves (without one it is pulled toward 0 with weight 1)."""
-    undo_below: float = 0.85
-    """A move after which O fell under this fraction of its O before is taken back."""
     explore: bool = False
-    """Calibration runs: every plan a random turn within the trust radius instead of the
-    predicted best (the undo still guards it), to record what turns do on this laser."""
-    seed: int = 0
-    """Seed of the exploring turns."""
+    """Calibration runs: every plan a random turn within the trust radius (seeded 0)
+    instead of the predicted best (the undo still guards it), to record what turns do on
+    this laser."""
 
     def __post_init__(self) -> None:
-        checks.counts(self, 'measurements', 'memory')
-        checks.counts(self, 'candidates', minimum=3)
         checks.positive(self, 'radius')
         checks.non_negative(self, 'spread_penalty')
-        checks.non_negative(self, 'min_gain')
         checks.non_negative(self, 'noise_gate')
-        checks.positive(self, 'prior_moves')
-        checks.positive(self, 'turn_ridge')
-        if not 0 < self.undo_below <= 1:
-            raise ValueError(f'undo_below must be in (0, 1], got {self.undo_below}')
 
 
 class OnlineCorrection:
     """What the predictor got wrong on this laser: ``a + b * delta + c * |delta|`` fit
-    (ridge least squares) to the errors of the last ``memory`` moves, added to later
+    (ridge least squares, every term pulled alike: a heavier pull on ``b`` and ``c`` did
+    not pay, ``bench/results/planner_turn_ridge.md``) to the errors of the last ``memory``
+    moves, added to later
     plans (the planner uses it less its value at 0, so ``a`` only absorbs what the drift
     of K did between the two measurements of a move). ``b`` learns a predictor that is
     wrong about which way to turn; ``c`` one that is wrong about whether turning pays at
@@ -102,11 +94,10 @@ class OnlineCorrection:
     fit starts and what the ridge pulls it toward, with weight ``ridge`` (default: 0 and
     weight 1)."""
 
-    def __init__(self, memory: int, ridge: float = 1.0, prior: np.ndarray | None = None,
-                 turn_ridge: float = 1.0) -> None:
+    def __init__(self, memory: int, ridge: float = 1.0, prior: np.ndarray | None = None
+                 ) -> None:
         self.moves: deque[tuple[float, float]] = deque(maxlen=memory)  # (delta, error)
-        #: (3,) ridge weight per term: ``ridge`` on a, ``ridge * turn_ridge`` on b and c
-        self.ridge = ridge * np.r_[1.0, turn_ridge, turn_ridge]
+        self.ridge = float(ridge)
         self.prior = np.zeros(3) if prior is None else np.asarray(prior, float)
         if self.prior.shape != (3,) or not np.all(np.isfinite(self.prior)):
             raise ValueError(f'the correction prior must be 3 finite values, got {prior}')
@@ -129,7 +120,7 @@ class OnlineCorrection:
             return
         d, e = np.array(self.moves).T
         x = self._terms(d)
-        self.coefficients = np.linalg.solve(x.T @ x + np.diag(self.ridge),
+        self.coefficients = np.linalg.solve(x.T @ x + self.ridge * np.eye(3),
                                             x.T @ e + self.ridge * self.prior)
 
     def __call__(self, delta: np.ndarray) -> np.ndarray:
@@ -143,15 +134,13 @@ class RotationPlanner:
                  correction_prior: np.ndarray | None = None) -> None:
         self.model = model
         self.config = config or PlannerConfig()
-        self.recent: deque[tuple[float, float]] = deque(maxlen=self.config.measurements)
+        self.recent: deque[tuple[float, float]] = deque(maxlen=MEASUREMENTS)
         calibrated = correction_prior is not None
-        self.correction = OnlineCorrection(
-            self.config.memory, ridge=self.config.prior_moves if calibrated else 1.0,
-            prior=correction_prior,
-            turn_ridge=self.config.turn_ridge)
+        self.correction = OnlineCorrection(MEMORY, ridge=PRIOR_MOVES if calibrated else 1.0,
+                                           prior=correction_prior)
         self.moves = 0
         self.undone = 0
-        self._rng = np.random.default_rng(self.config.seed)
+        self._rng = np.random.default_rng(0)
         self.last_prediction = float('nan')  # predicted change of log O of the last move
         self._pending: tuple[float, float, float] | None = None  # (delta, predicted, log O)
 
@@ -185,11 +174,11 @@ class RotationPlanner:
             delta, predicted, before = pending
             if cfg.online:
                 self.correction.add(delta, (log_o - before) - predicted)
-            if log_o - before < np.log(cfg.undo_below):
+            if log_o - before < np.log(UNDO_BELOW):
                 self.undone += 1
                 self.recent.clear()
                 return -delta
-        deltas = np.linspace(-cfg.radius, cfg.radius, cfg.candidates)
+        deltas = np.linspace(-cfg.radius, cfg.radius, CANDIDATES)
         mean, spread = self.model.predict(u, theta, float(np.exp(log_e)), float(np.exp(log_m)),
                                           deltas)
         if cfg.online:
@@ -197,9 +186,9 @@ class RotationPlanner:
         score = mean - cfg.spread_penalty * spread
         best = int(np.argmax(score))
         if cfg.explore:
-            best = int(self._rng.integers(cfg.candidates))
-        elif not score[best] > max(cfg.min_gain, score[cfg.candidates // 2],
-                                   cfg.noise_gate * noise * np.sqrt(2 / cfg.measurements)):
+            best = int(self._rng.integers(CANDIDATES))
+        elif not score[best] > max(MIN_GAIN, score[CANDIDATES // 2],
+                                   cfg.noise_gate * noise * np.sqrt(2 / MEASUREMENTS)):
             return 0.0
         self.moves += 1
         self.last_prediction = float(mean[best])
