@@ -25,12 +25,10 @@ class DLMPCConfig:
     learning_rate: float = 0.05
     """Adam step of the plan optimization [rad]."""
     error_threshold: float = 1.0
-    """One-step prediction error (normalized state units, averaged over recent periods)
-    above which the inner loop takes over."""
+    """One-step prediction error (normalized state units, averaged over the last
+    ``modes.ERROR_MEMORY`` periods) above which the inner loop takes over."""
     accurate_error: float = 0.3
     """Errors below this count as accurate (iterations grow)."""
-    error_memory: int = 3
-    """Recent periods whose prediction errors are averaged."""
     acquisition: AcquisitionConfig | None = field(default_factory=AcquisitionConfig)
     """The lock acquisition scan (None: off)."""
     tracking: TrackingConfig | None = field(default_factory=TrackingConfig)
@@ -51,5 +49,3 @@ class DLMPCConfig:
             raise ValueError('need 1 <= min_iterations <= start_iterations <= max_iterations')
         if not (self.learning_rate > 0 and self.error_threshold > 0 and self.accurate_error > 0):
             raise ValueError('learning_rate, error_threshold and accurate_error must be > 0')
-        if self.error_memory < 1:
-            raise ValueError('error_memory must be >= 1')

@@ -35,6 +35,9 @@ from dlmpc_ros.control.planner import PlanProblem, solve_plan
 from dlmpc_ros.control.tracking import CurveTracker
 from dlmpc_ros.learning.mprnn import MPRNN
 
+#: Recent periods whose one-step prediction errors are averaged.
+ERROR_MEMORY = 3
+
 
 @dataclass(frozen=True)
 class Period:
@@ -92,7 +95,7 @@ class PredictionMonitor:
         self.model = model
         self.config = config
         self.history: deque[torch.Tensor] = deque(maxlen=model.min_history())
-        self.errors: deque[float] = deque(maxlen=config.error_memory)
+        self.errors: deque[float] = deque(maxlen=ERROR_MEMORY)
         self.iterations = config.start_iterations
         self._expected: torch.Tensor | None = None   # (2,) v forecast for this period
 

@@ -85,8 +85,7 @@ def test_controller_has_no_way_to_receive_the_true_birefringence():
 
 
 @pytest.mark.parametrize('bad', [{'min_iterations': 0}, {'learning_rate': 0.0},
-                                 {'start_iterations': 9, 'max_iterations': 8},
-                                 {'error_memory': 0}])
+                                 {'start_iterations': 9, 'max_iterations': 8}])
 def test_bad_controller_settings_are_rejected(bad):
     with pytest.raises(ValueError):
         DLMPCConfig(**bad)
