@@ -34,7 +34,6 @@ from typing import Protocol
 import numpy as np
 
 from dlmpc_ros.control.limits import AngleLimits, into_range
-from dlmpc_ros.core import checks
 from dlmpc_ros.core.angles import wrap_angles
 
 

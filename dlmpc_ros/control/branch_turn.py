@@ -19,11 +19,11 @@ Two checks make it safe on a laser that is not the simulator:
 - turning one way keeps the pulse, the other way loses it for |K| > 0.1 on the
   simulator, and a real laser's sign conventions are not known: if O falls under
   ``turn_guard`` x its O before the turn, the turn goes back the way it came and the
-  other way is tried next time (near K = 0, within ``free_turn``, either way keeps the
+  other way is tried next time (near K = 0, within ``FREE_TURN``, either way keeps the
   pulse and the turn goes the way that brings the servos back toward the middle of their
   range);
 - the turn is a trial: ``verify`` periods after it, O is compared with O before it, and
-  unless the new branch gives ``branch_gain`` more, the laser is turned back (at once
+  unless the new branch gives ``BRANCH_GAIN`` more, the laser is turned back (at once
   if O falls under ``turn_guard`` x its O before the turn while
   it is on trial: a pulse that held on the way can still die where it lands).
 """
@@ -64,6 +64,11 @@ class TurnPhase(Enum):
 
 ARRIVED, KEPT, RETURNED, ABANDONED = (TurnEvent.ARRIVED, TurnEvent.KEPT, TurnEvent.RETURNED,
                                       TurnEvent.ABANDONED)
+#: Within this distance of K = 0 (K units) both ways round keep the pulse; a turn there
+#: goes the way that unwinds the servos toward the middle of their range.
+FREE_TURN = 0.06
+#: Relative gain of O the new branch must bring to be kept.
+BRANCH_GAIN = 0.005
 
 
 class BranchTurn:
@@ -71,8 +76,7 @@ class BranchTurn:
 
     ``on_curve(u)`` gives the curve's angles (4,) [rad] at ``u`` (with any learned
     rotation); the settings are the tracker's (:class:`~dlmpc_ros.control.tracking.
-    TrackingConfig`: ``turn_step``, ``free_turn``, ``turn_guard``, ``turn_cooldown``,
-    ``verify``, ``branch_gain``)."""
+    TrackingConfig`: ``turn_step``, ``turn_guard``, ``turn_cooldown``, ``verify``)."""
 
     def __init__(self, config, limits: AngleLimits,
                  on_curve: Callable[[float], np.ndarray]) -> None:
@@ -116,7 +120,7 @@ class BranchTurn:
         curve point :attr:`landing` (``-|u|``).
 
         Every turn goes in the same direction, so turns one after the other wind the
-        servos toward an end of their range. A turn near K = 0 (``|u| <= free_turn``)
+        servos toward an end of their range. A turn near K = 0 (``|u| <= FREE_TURN``)
         goes the way that brings them back toward the middle first, any other the way that
         kept the pulse last first; the other way is the fallback where the first leaves
         the range."""
@@ -126,7 +130,7 @@ class BranchTurn:
         self.landing = -abs(u)
         fractions = (np.arange(steps) + 1) / steps
         middle = 0.5 * (self.limits.low + self.limits.high)
-        if abs(u) > cfg.free_turn:
+        if abs(u) > FREE_TURN:
             ways: tuple[float, ...] = (self.direction, -self.direction)
         else:
             ways = tuple(sorted((-1.0, 1.0), key=lambda d: abs(
@@ -165,7 +169,7 @@ class BranchTurn:
             if len(self._checked) < cfg.verify:
                 return None, TurnEvent.NONE
             settled = self._checked[-max(1, cfg.verify // 2):]  # the later half: settled
-            if np.median(settled) >= (1 + cfg.branch_gain) * self._before:
+            if np.median(settled) >= (1 + BRANCH_GAIN) * self._before:
                 self._phase, self.wait = TurnPhase.IDLE, cfg.turn_cooldown
                 self.made += 1
                 self.lost_landing = False

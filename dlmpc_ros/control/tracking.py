@@ -56,6 +56,21 @@ from dlmpc_ros.core.symmetry import QUARTER_TURN
 from dlmpc_ros.learning.curve import check_curve
 
 
+#: Factors on the estimate's step while the dither's comparisons agree in sign, and when
+#: they flip (Rprop).
+RPROP_GROW, RPROP_SHRINK = 1.5, 0.5
+#: Points along the curve that carry the learned rotation.
+ROTATION_KNOTS = 13
+#: Largest learned rotation [rad].
+ROTATION_LIMIT = 1.0
+#: A turn planned at one point of the curve also turns the knots no turn was planned next
+#: to yet, by the turn x exp(-(distance / ROTATION_SPREAD)^2 / 2) (K units): what one
+#: point learned is the prior where K has not been. Into every knot, turns added up past
+#: the predictor's data (-0.87 rad) and a development run lost 0.17. Chosen on the
+#: development plants (``bench/results/rotation_spread.md``).
+ROTATION_SPREAD = 0.1
+
+
 @dataclass(frozen=True)
 class TrackingConfig:
     """Settings of the curve tracker (times in control periods; ``s`` in K's units)."""
@@ -67,17 +82,13 @@ class TrackingConfig:
     block: int = 3
     """Control periods per dither half."""
     step: float = 0.015
-    """First change of the estimate after a compared block; it grows by ``grow`` while the
-    comparisons agree in sign and shrinks by ``shrink`` when they flip (Rprop), within
-    [``min_step``, ``max_step``]."""
+    """First change of the estimate after a compared block; it grows by ``RPROP_GROW``
+    while the comparisons agree in sign and shrinks by ``RPROP_SHRINK`` when they flip
+    (Rprop), within [``min_step``, ``max_step``]."""
     min_step: float = 0.005
     """Smallest change of the estimate per compared block."""
     max_step: float = 0.03
     """Largest change of the estimate per compared block."""
-    grow: float = 1.5
-    """Factor on the step while the comparisons agree in sign (>= 1)."""
-    shrink: float = 0.5
-    """Factor on the step when they flip (in (0, 1])."""
     deadband: float = 5e-5
     """Relative O difference below which the estimate does not move."""
     noise_deadband: float = 1.0
@@ -129,9 +140,6 @@ class TrackingConfig:
     turn_step: float = 0.2
     """Turn of all four angles per period while changing branch [rad] (at most the servo
     speed)."""
-    free_turn: float = 0.06
-    """Within this distance of K = 0 (K units) both ways round keep the pulse; the tracker
-    then turns the way that unwinds the servos toward the middle of their range."""
     turn_guard: float = 0.45
     """During a change of branch, O below this fraction of the O before it means the turn
     is losing the pulse: the tracker turns back (and turns the other way next time).
@@ -153,9 +161,6 @@ class TrackingConfig:
     verify: int = 6
     """Periods after a turn; the median O of their later half decides whether the new
     branch is kept."""
-    branch_gain: float = 0.005
-    """Relative gain of O the new branch must bring to be kept (-1 < branch_gain; a
-    negative value keeps a turn that lost less than that)."""
     trial_drop: float = 0.08
     """Relative fall of O under its best since the branch was chosen that makes the
     tracker try the other branch (0: only the estimate decides)."""
@@ -181,25 +186,12 @@ class TrackingConfig:
     0: never)."""
     plan_every: int = 4
     """Dither blocks between two requests for a turn of the curve (with a planner)."""
-    rotation_knots: int = 13
-    """Points along the curve that carry the learned rotation."""
-    rotation_limit: float = 1.0
-    """Largest learned rotation [rad]."""
-    rotation_spread: float = 0.1
-    """A turn planned at one point of the curve also turns the knots no turn was planned
-    next to yet, by the turn x exp(-(distance / rotation_spread)^2 / 2) (K units; 0: only
-    the two knots around the point): what one point learned is the prior where K has not
-    been. Into every knot, turns added up past the predictor's data (-0.87 rad) and a
-    development run lost 0.17. Chosen on the development plants
-    (``bench/results/rotation_spread.md``)."""
 
     def __post_init__(self) -> None:
         if not (self.dither > 0 and 0 < self.min_step <= self.step <= self.max_step
                 and self.deadband >= 0 and self.noise_deadband >= 0):
             raise ValueError('need dither > 0, 0 < min_step <= step <= max_step, '
                              'deadband >= 0 and noise_deadband >= 0')
-        if not (self.grow >= 1 and 0 < self.shrink <= 1):
-            raise ValueError('need grow >= 1 and 0 < shrink <= 1')
         if min(self.block, self.entry_patience, self.guard_periods, self.cooldown) < 1 \
                 or self.settle < 0:
             raise ValueError('block, entry_patience, guard_periods and cooldown must be '
@@ -219,16 +211,14 @@ class TrackingConfig:
         if not self.entry_trial_below >= 0:
             raise ValueError(f'entry_trial_below must be >= 0, got {self.entry_trial_below}')
         if not (self.mirror_margin >= 0 and 0 < self.turn_step <= QUARTER_TURN
-                and self.free_turn >= 0 and 0 < self.turn_guard <= 1
-                and self.turn_cooldown >= 1 and self.verify >= 1 and self.branch_gain > -1
+                and 0 < self.turn_guard <= 1
+                and self.turn_cooldown >= 1 and self.verify >= 1
                 and 0 <= self.trial_drop < 1):
-            raise ValueError('need mirror_margin >= 0, 0 < turn_step <= pi/2, free_turn >= 0, '
+            raise ValueError('need mirror_margin >= 0, 0 < turn_step <= pi/2, '
                              '0 < turn_guard <= 1, turn_cooldown >= 1, verify >= 1, '
-                             'branch_gain > -1 and 0 <= trial_drop < 1')
-        if not (self.plan_every >= 1 and self.rotation_knots >= 2 and self.rotation_limit > 0
-                and self.rotation_spread >= 0):
-            raise ValueError('need plan_every >= 1, rotation_knots >= 2, rotation_limit > 0 '
-                             'and rotation_spread >= 0')
+                             '0 <= trial_drop < 1')
+        if not self.plan_every >= 1:
+            raise ValueError(f'plan_every must be >= 1, got {self.plan_every}')
 
 
 class TrackerState(Enum):
@@ -303,9 +293,8 @@ class CurveTracker:
         self._jitter: deque[float] = deque(maxlen=64)
         #: O of the latest ``turn_reference`` periods (the O before a turn is their median)
         self._latest: deque[float] = deque(maxlen=self.config.turn_reference)
-        self.rotation = CurveRotation(self.grid[0], self.grid[-1],
-                                      self.config.rotation_knots, self.config.rotation_limit,
-                                      self.config.rotation_spread)
+        self.rotation = CurveRotation(self.grid[0], self.grid[-1], ROTATION_KNOTS,
+                                      ROTATION_LIMIT, ROTATION_SPREAD)
         self.planner = planner
         self._turn_at = 0.0  # the curve point u of the latest planned turn
         self.planned = 0.0
@@ -614,7 +603,7 @@ class CurveTracker:
             difference = sign * (middle - 0.5 * (before + after))   # O(+) - O(-)
             if abs(difference) > self._deadband() * max(abs(middle), 1e-12):
                 self._step, self._last_move, move = _rprop(
-                    difference, self._step, self._last_move, cfg.grow, cfg.shrink,
+                    difference, self._step, self._last_move, RPROP_GROW, RPROP_SHRINK,
                     cfg.min_step, cfg.max_step)
                 self.estimate = float(np.clip(self.estimate + move, self.grid[0],
                                               self.grid[-1]))

@@ -56,7 +56,7 @@ from dlmpc_ros import interfaces as itf
 from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
 from dlmpc_ros.control.rotation import locate
 from dlmpc_ros.control.rotation_planner import OnlineCorrection
-from dlmpc_ros.control.tracking import TrackingConfig
+from dlmpc_ros.control.tracking import ROTATION_KNOTS
 from dlmpc_ros.core import checks
 from dlmpc_ros.learning.checkpoint import save_checkpoint
 from dlmpc_ros.learning.curve import FILE_NAME, load_curve
@@ -222,7 +222,7 @@ def adapt_models(bag: Path, models_dir: Path, out: Path, cfg: AdaptConfig | None
         after, after_val = prediction_rmse(model, x, y), prediction_rmse(model, x_val, y_val)
     else:  # the shipped predictor, unchanged
         epochs_kept, after, after_val = [0] * len(model.members), before, before_val
-    knots = np.linspace(grid[0], grid[-1], TrackingConfig().rotation_knots)
+    knots = np.linspace(grid[0], grid[-1], ROTATION_KNOTS)
     values = rotation_prior(states, knots, cfg)
     if out.resolve() != models_dir.resolve():
         shutil.copytree(models_dir, out, dirs_exist_ok=True)
