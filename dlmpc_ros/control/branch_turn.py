@@ -2,7 +2,7 @@
 
 The twin of the curve, ``c(-s) + pi/2`` (:mod:`dlmpc_ros.core.symmetry`), is as good at K
 as the curve is at -K. A :class:`BranchTurn` takes the laser from one to the other
-without losing the pulse: over ``ceil(pi/2 / turn_step)`` periods all four angles turn
+without losing the pulse: over ``ceil(pi/2 / TURN_STEP)`` periods all four angles turn
 together by a quarter turn while the curve parameter runs from the point ``u`` the
 tracker is at to ``-|u|``, on the curve's good side (K < 0). On the nominal cavity the
 estimate follows K, and a tracker past the margin on the wrong side (``u > 0``) lands at
@@ -22,7 +22,7 @@ Two checks make it safe on a laser that is not the simulator:
   other way is tried next time (near K = 0, within ``FREE_TURN``, either way keeps the
   pulse and the turn goes the way that brings the servos back toward the middle of their
   range);
-- the turn is a trial: ``verify`` periods after it, O is compared with O before it, and
+- the turn is a trial: ``VERIFY`` periods after it, O is compared with O before it, and
   unless the new branch gives ``BRANCH_GAIN`` more, the laser is turned back (at once
   if O falls under ``turn_guard`` x its O before the turn while
   it is on trial: a pulse that held on the way can still die where it lands).
@@ -69,6 +69,14 @@ ARRIVED, KEPT, RETURNED, ABANDONED = (TurnEvent.ARRIVED, TurnEvent.KEPT, TurnEve
 FREE_TURN = 0.06
 #: Relative gain of O the new branch must bring to be kept.
 BRANCH_GAIN = 0.005
+#: Turn of all four angles per period while changing branch [rad] (at most the servo
+#: speed).
+TURN_STEP = 0.2
+#: Periods after a turn (made or given up) before the next may start.
+TURN_COOLDOWN = 100
+#: Periods after a turn; the median O of their later half decides whether the new branch
+#: is kept.
+VERIFY = 6
 
 
 class BranchTurn:
@@ -76,7 +84,7 @@ class BranchTurn:
 
     ``on_curve(u)`` gives the curve's angles (4,) [rad] at ``u`` (with any learned
     rotation); the settings are the tracker's (:class:`~dlmpc_ros.control.tracking.
-    TrackingConfig`: ``turn_step``, ``turn_guard``, ``turn_cooldown``, ``verify``)."""
+    TrackingConfig`: ``turn_guard``)."""
 
     def __init__(self, config, limits: AngleLimits,
                  on_curve: Callable[[float], np.ndarray]) -> None:
@@ -124,8 +132,7 @@ class BranchTurn:
         goes the way that brings them back toward the middle first, any other the way that
         kept the pulse last first; the other way is the fallback where the first leaves
         the range."""
-        cfg = self.config
-        steps = int(np.ceil(QUARTER_TURN / cfg.turn_step - 1e-9))
+        steps = int(np.ceil(QUARTER_TURN / TURN_STEP - 1e-9))
         start = self.on_curve(u)
         self.landing = -abs(u)
         fractions = (np.arange(steps) + 1) / steps
@@ -146,7 +153,7 @@ class BranchTurn:
                 self._phase = TurnPhase.GO
                 return True
         self.blocked += 1
-        self.wait = cfg.turn_cooldown
+        self.wait = TURN_COOLDOWN
         return False
 
     def _retrace(self, phase: TurnPhase) -> None:
@@ -166,11 +173,11 @@ class BranchTurn:
         elif self._phase is TurnPhase.VERIFY:
             if np.isfinite(objective):
                 self._checked.append(float(objective))
-            if len(self._checked) < cfg.verify:
+            if len(self._checked) < VERIFY:
                 return None, TurnEvent.NONE
-            settled = self._checked[-max(1, cfg.verify // 2):]  # the later half: settled
+            settled = self._checked[-max(1, VERIFY // 2):]  # the later half: settled
             if np.median(settled) >= (1 + BRANCH_GAIN) * self._before:
-                self._phase, self.wait = TurnPhase.IDLE, cfg.turn_cooldown
+                self._phase, self.wait = TurnPhase.IDLE, TURN_COOLDOWN
                 self.made += 1
                 self.lost_landing = False
                 return None, KEPT
@@ -192,5 +199,5 @@ class BranchTurn:
                 self.direction = -self._way  # the other way round next time
         else:
             self.rejected += 1
-        self._phase, self.wait = TurnPhase.IDLE, cfg.turn_cooldown
+        self._phase, self.wait = TurnPhase.IDLE, TURN_COOLDOWN
         return command, event

@@ -30,7 +30,7 @@ not say which side of 0 K is on, and the measured O does.
 
 The curve was made on the nominal cavity; on the laser in front of it the curve is
 turned by a learned rotation theta(u) (all four angles together, a different turn at
-each point of the curve; :mod:`dlmpc_ros.control.rotation`). Every ``plan_every`` dither
+each point of the curve; :mod:`dlmpc_ros.control.rotation`). Every ``PLAN_EVERY`` dither
 blocks the tracker asks the planner it was built with for ``plan(u, theta, noise)`` (the
 DL-MPC's :mod:`~dlmpc_ros.control.rotation_planner`; ``noise`` the measurement noise it
 read off the run, :meth:`CurveTracker.noise`) for a further turn at the current point,
@@ -59,6 +59,10 @@ from dlmpc_ros.learning.curve import check_curve
 #: Factors on the estimate's step while the dither's comparisons agree in sign, and when
 #: they flip (Rprop).
 RPROP_GROW, RPROP_SHRINK = 1.5, 0.5
+#: Smallest and largest change of the estimate per compared block (K units).
+MIN_STEP, MAX_STEP = 0.005, 0.03
+#: Dither blocks between two requests for a turn of the curve (with a planner).
+PLAN_EVERY = 4
 #: Points along the curve that carry the learned rotation.
 ROTATION_KNOTS = 13
 #: Largest learned rotation [rad].
@@ -84,11 +88,7 @@ class TrackingConfig:
     step: float = 0.015
     """First change of the estimate after a compared block; it grows by ``RPROP_GROW``
     while the comparisons agree in sign and shrinks by ``RPROP_SHRINK`` when they flip
-    (Rprop), within [``min_step``, ``max_step``]."""
-    min_step: float = 0.005
-    """Smallest change of the estimate per compared block."""
-    max_step: float = 0.03
-    """Largest change of the estimate per compared block."""
+    (Rprop), within [``MIN_STEP``, ``MAX_STEP``]."""
     deadband: float = 5e-5
     """Relative O difference below which the estimate does not move."""
     noise_deadband: float = 1.0
@@ -137,9 +137,6 @@ class TrackingConfig:
     mirror_margin: float = 0.03
     """How far past K = 0 the estimate must go before the tracker turns to the other
     branch (hysteresis, K units)."""
-    turn_step: float = 0.2
-    """Turn of all four angles per period while changing branch [rad] (at most the servo
-    speed)."""
     turn_guard: float = 0.45
     """During a change of branch, O below this fraction of the O before it means the turn
     is losing the pulse: the tracker turns back (and turns the other way next time).
@@ -156,11 +153,6 @@ class TrackingConfig:
     of this many latest periods (1: the period's own O). A pulse just formed from noise
     swings by a factor of two between periods, and a turn begun on a crest was given up
     at the next trough (``bench/results/entry_turn.md``)."""
-    turn_cooldown: int = 100
-    """Periods after a turn (made or given up) before the next may start."""
-    verify: int = 6
-    """Periods after a turn; the median O of their later half decides whether the new
-    branch is kept."""
     trial_drop: float = 0.08
     """Relative fall of O under its best since the branch was chosen that makes the
     tracker try the other branch (0: only the estimate decides)."""
@@ -184,13 +176,11 @@ class TrackingConfig:
     """The entry trial is made only if O is then under this fraction of the curve's own
     steady O at the estimate (the O the curve gave on the simulator; without it, always;
     0: never)."""
-    plan_every: int = 4
-    """Dither blocks between two requests for a turn of the curve (with a planner)."""
 
     def __post_init__(self) -> None:
-        if not (self.dither > 0 and 0 < self.min_step <= self.step <= self.max_step
+        if not (self.dither > 0 and MIN_STEP <= self.step <= MAX_STEP
                 and self.deadband >= 0 and self.noise_deadband >= 0):
-            raise ValueError('need dither > 0, 0 < min_step <= step <= max_step, '
+            raise ValueError(f'need dither > 0, {MIN_STEP} <= step <= {MAX_STEP}, '
                              'deadband >= 0 and noise_deadband >= 0')
         if min(self.block, self.entry_patience, self.guard_periods, self.cooldown) < 1 \
                 or self.settle < 0:
@@ -210,15 +200,11 @@ class TrackingConfig:
             raise ValueError('need entry_trial_after >= 0 and turn_reference >= 1')
         if not self.entry_trial_below >= 0:
             raise ValueError(f'entry_trial_below must be >= 0, got {self.entry_trial_below}')
-        if not (self.mirror_margin >= 0 and 0 < self.turn_step <= QUARTER_TURN
+        if not (self.mirror_margin >= 0
                 and 0 < self.turn_guard <= 1
-                and self.turn_cooldown >= 1 and self.verify >= 1
                 and 0 <= self.trial_drop < 1):
-            raise ValueError('need mirror_margin >= 0, 0 < turn_step <= pi/2, '
-                             '0 < turn_guard <= 1, turn_cooldown >= 1, verify >= 1, '
+            raise ValueError('need mirror_margin >= 0, 0 < turn_guard <= 1 and '
                              '0 <= trial_drop < 1')
-        if not self.plan_every >= 1:
-            raise ValueError(f'plan_every must be >= 1, got {self.plan_every}')
 
 
 class TrackerState(Enum):
@@ -265,7 +251,7 @@ class CurveTracker:
     which the laser counts as locked (E/M units); ``expected`` (n,), the steady O on the
     curve at each grid point, enables the survey (None: no survey). ``limits`` are the
     servo limits a change of branch must stay inside (default: :class:`AngleLimits`).
-    ``planner`` turns the curve every ``plan_every`` dither blocks (None: never).
+    ``planner`` turns the curve every ``PLAN_EVERY`` dither blocks (None: never).
     """
 
     def __init__(self, grid: np.ndarray, angles: np.ndarray, threshold: float,
@@ -585,7 +571,7 @@ class CurveTracker:
 
     def _end_block(self, objective: float) -> None:
         """Close a dither half: compare it with its neighbours and move the estimate; every
-        ``plan_every`` blocks, turn the curve at the estimate's point by the planner's
+        ``PLAN_EVERY`` blocks, turn the curve at the estimate's point by the planner's
         turn (and start the dither afresh)."""
         cfg = self.config
         self._blocks.append((self._sign, objective))
@@ -604,11 +590,11 @@ class CurveTracker:
             if abs(difference) > self._deadband() * max(abs(middle), 1e-12):
                 self._step, self._last_move, move = _rprop(
                     difference, self._step, self._last_move, RPROP_GROW, RPROP_SHRINK,
-                    cfg.min_step, cfg.max_step)
+                    MIN_STEP, MAX_STEP)
                 self.estimate = float(np.clip(self.estimate + move, self.grid[0],
                                               self.grid[-1]))
         if (self.planner is not None and self._age > cfg.settle
-                and self._block_count % cfg.plan_every == 0):
+                and self._block_count % PLAN_EVERY == 0):
             u = self.branch * self.estimate
             turn = self.planner.plan(u, self.rotation(u), self.noise())
             if turn:

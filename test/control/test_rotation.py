@@ -189,7 +189,7 @@ def test_a_turn_that_loses_the_laser_before_it_is_judged_is_taken_back(toy_model
     from dlmpc_ros.control.tracking import CurveTracker, TrackingConfig
     grid = np.linspace(-0.3, 0.3, 61)
     curve = np.stack([2 * grid, 0.1 + 0 * grid, -0.2 + grid, 0.3 + 0 * grid], axis=1)
-    config = TrackingConfig(entry_patience=1, settle=2, block=1, plan_every=2, guard=0.8,
+    config = TrackingConfig(entry_patience=1, settle=2, block=1, guard=0.8,
                             guard_periods=2, start=-0.1)
     planner = RotationPlanner(toy_model, PlannerConfig(radius=0.05, spread_penalty=0.0,
                                                        online=False, noise_gate=0.0))

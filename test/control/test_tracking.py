@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from dlmpc_ros.control.branch_turn import TurnEvent
+from dlmpc_ros.control.branch_turn import TURN_STEP, TurnEvent
 from dlmpc_ros.control.dlmpc import DLMPCController
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.limits import AngleLimits
@@ -413,8 +413,8 @@ def test_a_turn_that_loses_the_pulse_is_turned_back_and_tried_the_other_way():
     runs from -0.1 to 0.25 in 200 periods, the estimate passes the margin, the quarter turn in the
     simulator's direction starts losing O, the tracker turns back before O falls far,
     and after the cooldown turns the other way, onto the twin."""
-    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, turn_cooldown=30,
-                         mirror_margin=0.2, entry_trial_after=NEVER)
+    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, mirror_margin=0.2,
+                         entry_trial_after=NEVER)
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
     tracker.turner.direction = 1.0                                  # the wrong way here
     ramp = lambda t: -0.1 + 0.35 * min(max(t - 300, 0) / 200, 1.0)  # noqa: E731
@@ -478,8 +478,8 @@ def test_a_turn_whose_pulse_goes_where_it_landed_is_taken_back_at_once():
     guard: the laser is turned back in the next period, not after the ``verify`` periods
     (the way round is kept, and the next entry makes no trial); O above the guard is
     verified."""
-    steps = int(np.ceil(QUARTER_TURN / TrackingConfig().turn_step - 1e-9))
-    cfg = TrackingConfig(verify=6)
+    steps = int(np.ceil(QUARTER_TURN / TURN_STEP - 1e-9))
+    cfg = TrackingConfig()
     for landing, lost in ((0.05, True), (0.2, False)):
         turner = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg).turner
         assert turner.begin(ANGLES[20], GRID[20], 0.2)
@@ -512,8 +512,8 @@ def test_a_turn_stays_inside_the_servo_limits():
                                  dict(guard=1.5), dict(settle=-1), dict(cooldown=0),
                                  dict(survey_ratio=0), dict(survey_spacing=0),
                                  dict(survey_dwell=0), dict(mirror_margin=-0.1),
-                                 dict(turn_step=0), dict(turn_step=2.0),
-                                 dict(turn_guard=0), dict(turn_cooldown=0),
+                                 dict(step=0.001), dict(step=0.05),
+                                 dict(turn_guard=0),
                                  dict(trial_drop=1.0), dict(trial_drop=-0.1),
                                  dict(trial_blocks=0),
                                  dict(entry_trial_below=-0.1)])
