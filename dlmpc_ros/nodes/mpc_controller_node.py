@@ -22,7 +22,7 @@ from dlmpc_ros.control.acquisition import AcquisitionConfig
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.factory import load_dlmpc
 from dlmpc_ros.control.rotation_planner import PlannerConfig
-from dlmpc_ros.control.tracking import TrackingConfig
+from dlmpc_ros.control.tracking import MAX_STEP, MIN_STEP, TrackingConfig
 from dlmpc_ros.learning.model_files import ModelFileError
 from dlmpc_ros.paths import models_dir
 from dlmpc_ros.ros import params
@@ -103,7 +103,7 @@ RANGES: dict[str, tuple[float, float]] = {
     'lock_fraction': (1e-6, 0.999999),
     'acquire_patience': (1, 1_000_000), 'acquire_relock_patience': (1, 1_000_000),
     'acquire_dwell': (1, 1_000_000),
-    'track_dither': (1e-9, 1.0), 'track_step': (_TRK.min_step, _TRK.max_step),
+    'track_dither': (1e-9, 1.0), 'track_step': (MIN_STEP, MAX_STEP),
     'track_guard': (1e-6, 1.0), 'track_noise_deadband': (0.0, 10.0),
     'plan_radius': (1e-3, 1.0), 'plan_spread_penalty': (0.0, 100.0),
     'plan_noise_gate': (0.0, 100.0),
