@@ -34,3 +34,10 @@ def test_dlmpc_sim_rejects_bad_parameters(capsys):
         main(['--points', '4'])
     assert err.value.code == 2
     assert 'points must be >= 16' in capsys.readouterr().err
+
+
+def test_each_scheme_brings_its_own_steps_unless_given():
+    from dlmpc_ros.cli.sim import parse_args
+    assert parse_args([]).config.steps == 6                          # richardson4
+    assert parse_args(['--scheme', 'strang']).config.steps == 32
+    assert parse_args(['--scheme', 'strang', '--steps-per-round-trip', '8']).config.steps == 8

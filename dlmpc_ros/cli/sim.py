@@ -36,10 +36,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument('--until-steady', action='store_true',
                    help='stop at the first round trip that meets the steady-state rule '
                         '(without it, every requested round trip runs)')
-    defaults = CavityConfig()
-    for f in fields(CavityConfig):
-        p.add_argument('--' + f.name.replace('_', '-'), type=type(getattr(defaults, f.name)),
-                       default=getattr(defaults, f.name), help='(default: %(default)s)')
+    for f in fields(CavityConfig):  # the fields' own defaults: steps 0 is the scheme's own
+        p.add_argument('--' + f.name.replace('_', '-'), type=type(f.default),
+                       default=f.default, help='(default: %(default)s)')
     args = p.parse_args(argv)
     if args.round_trips < 1 or args.every < 1:
         p.error('--round-trips and --every must be >= 1')

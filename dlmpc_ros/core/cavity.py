@@ -64,7 +64,7 @@ def scheme_tables(config: CavityConfig) -> tuple[np.ndarray, ...]:
         multiples, coefficients = EXTRAPOLATIONS[name]
     multiples, coefficients = np.array(multiples, np.int64), np.array(coefficients)
     s = weights.shape[0]
-    h = config.fiber_length / (multiples[:, None] * config.steps_per_round_trip)  # (L, 1)
+    h = config.fiber_length / (multiples[:, None] * config.steps)  # (L, 1)
     between = 0.5 * (weights[:-1] + weights[1:])
     shares = np.concatenate([[0.5 * weights[0]], between,
                              [0.5 * (weights[-1] + weights[0]), 0.5 * weights[-1]]])
@@ -267,7 +267,7 @@ class Cavity:
                                cfg.gain_bandwidth, cfg.loss)),
                   grid.k_grid, grid.mode_index, grid.dt, obs)
         state = (self._p, self._m, self._phi_prev, self._birefringence, self._transfer,
-                 round_trips, cfg.steps_per_round_trip)
+                 round_trips, cfg.steps)
         if cfg.scheme == 'strang':  # its own kernel: the default's numbers stay bit for bit
             kernel = kernels.run_batch_parallel if parallel else kernels.run_batch_serial
             kernel(*state, float(cfg.fiber_length), float(cfg.dispersion), *common)

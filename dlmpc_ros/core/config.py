@@ -11,7 +11,7 @@ import math
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
-from dlmpc_ros.core.schemes import ORDER, SCHEMES
+from dlmpc_ros.core.schemes import DEFAULT_SCHEME, DEFAULT_STEPS, ORDER, SCHEMES
 
 #: The birefringence range the model is specified and trained for.
 BIREFRINGENCE_RANGE = (-0.3, 0.3)
@@ -41,13 +41,15 @@ class CavityConfig:
     """T, width of the periodic time window."""
     points: int = 256
     """n, number of time (and wavenumber) grid points; at least 16."""
-    steps_per_round_trip: int = 32
+    steps_per_round_trip: int = 0
     """Steps of the fiber pass (each one composition of ``scheme``'s symmetric split
-    steps). With 'strang' (second order), 32 keeps E and M within 3e-4 of a DOP853
-    solution at the defaults; see docs/solver.md for the other schemes."""
-    scheme: str = 'strang'
-    """Integration scheme of the fiber pass, one of :data:`SCHEMES`: 'strang' (the
-    symmetric split step, second order) or a fourth-order composition of it."""
+    steps); 0 (the default): the scheme's own, :data:`DEFAULT_STEPS` (richardson4 6,
+    strang 32), each within 1e-3 of a DOP853 solution (docs/solver.md). :attr:`steps` is
+    the number that runs."""
+    scheme: str = DEFAULT_SCHEME
+    """Integration scheme of the fiber pass, one of :data:`SCHEMES`: 'richardson4' (the
+    default, fourth order), 'strang' (the symmetric split step, second order; the
+    default before 2026-12-05), 'suzuki4' or 'yoshida4'."""
     steady_tolerance: float = 1e-6
     """A laser is at steady state when the relative L2 change of its amplitude ``phi``
     between consecutive round trips is below this value."""
@@ -71,8 +73,14 @@ class CavityConfig:
         """Order of convergence of the scheme in the step size."""
         return ORDER[self.scheme]
 
+    @property
+    def steps(self) -> int:
+        """Steps of the fiber pass that run: ``steps_per_round_trip``, or the scheme's own."""
+        return self.steps_per_round_trip or DEFAULT_STEPS[self.scheme]
+
     def to_dict(self) -> dict[str, float | int | str]:
-        return asdict(self)
+        """The fields, with the steps that run (a record says what ran)."""
+        return {**asdict(self), 'steps_per_round_trip': self.steps}
 
 
 #: The values each parameter may take: (low, high), both inclusive except where a
@@ -84,7 +92,7 @@ RANGES: dict[str, tuple[float, float]] = {
     'dispersion': (-10.0, 10.0), 'cross_phase': (0.0, 1.0), 'four_wave': (0.0, 1.0),
     'pump': (0.0, 100.0), 'saturation_energy': (0.0, 1000.0), 'gain_bandwidth': (0.0, 10.0),
     'loss': (0.0, 10.0), 'fiber_length': (0.0, 10.0), 'window': (1.0, 1000.0),
-    'points': (16, 4096), 'steps_per_round_trip': (1, 1024), 'steady_tolerance': (0.0, 1.0),
+    'points': (16, 4096), 'steps_per_round_trip': (0, 1024), 'steady_tolerance': (0.0, 1.0),
 }
 #: Parameters that must be > their low (not >=).
 POSITIVE = frozenset({'saturation_energy', 'fiber_length', 'steady_tolerance'})

@@ -35,6 +35,12 @@ EXTRAPOLATIONS: dict[str, tuple[tuple[int, ...], tuple[float, ...]]] = {
 SCHEMES: tuple[str, ...] = (*COMPOSITIONS, *EXTRAPOLATIONS)
 #: Order of convergence of each scheme in the step size.
 ORDER: dict[str, int] = {'strang': 2, 'yoshida4': 4, 'suzuki4': 4, 'richardson4': 4}
+#: Each scheme's steps per round trip when none are given: for the fourth-order schemes
+#: the fewest that keep E and M within 1e-3 of DOP853 (``bench/bench_cavity.py``); for
+#: ``strang`` the 32 of the models' data before 2026-12-05 (2.4e-4 on the spec rows).
+DEFAULT_STEPS: dict[str, int] = {'strang': 32, 'yoshida4': 14, 'suzuki4': 4, 'richardson4': 6}
+#: The scheme a cavity runs when none is given (docs/solver.md).
+DEFAULT_SCHEME = 'richardson4'
 
 
 def symmetric_steps(scheme: str, steps: int) -> int:

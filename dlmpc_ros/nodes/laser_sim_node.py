@@ -28,7 +28,7 @@ import math
 import sys
 import threading
 import time
-from dataclasses import fields
+from dataclasses import asdict, fields
 
 import numpy as np
 from rclpy.node import Node
@@ -47,7 +47,7 @@ from dlmpc_ros.ros.io import QOS, vector_message
 
 CAVITY_NAMES = tuple(f.name for f in fields(CavityConfig))
 DEFAULTS: dict[str, object] = {
-    **CavityConfig().to_dict(), **BenchConfig().to_dict(),
+    **asdict(CavityConfig()), **BenchConfig().to_dict(),
     'initial_angles': [-0.39, -0.25, 0.52, -0.14], 'initial_birefringence': 0.1,
     'initial': 'sech', 'seed': 0, 'round_trips_per_second': 0.0, 'max_round_trips': 0,
     'angle_limit': 2 * math.pi, 'birefringence_limit': 1.0, 'wait_for_subscribers': 0,
@@ -64,9 +64,10 @@ DESCRIPTIONS = {
     'fiber_length': 'Z, fiber length of one round trip (normalized units)',
     'window': 'T, width of the periodic time window (normalized units)',
     'points': 'n, time (and wavenumber) grid points',
-    'steps_per_round_trip': 'steps of the fiber pass (each one step of the scheme)',
-    'scheme': "integration scheme of the fiber pass: 'strang' (default, second order), "
-              "'richardson4', 'suzuki4' or 'yoshida4' (fourth order; docs/solver.md)",
+    'steps_per_round_trip': 'steps of the fiber pass (each one step of the scheme); 0: the '
+                            "scheme's own (richardson4 6, strang 32, suzuki4 4, yoshida4 14)",
+    'scheme': "integration scheme of the fiber pass: 'richardson4' (default), 'suzuki4' or "
+              "'yoshida4' (fourth order), 'strang' (second order; docs/solver.md)",
     'steady_tolerance': 'relative change of the amplitude per round trip below which the '
                         'laser is at steady state',
     'initial_angles': 'alpha1, alpha2, alpha3, alpha_p at start [rad]',

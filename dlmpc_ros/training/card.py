@@ -67,6 +67,11 @@ def write_model_card(ws: Workspace) -> Path:
                      f"{s.get('converged_fraction', float('nan')):.3f}, "
                      f"{s.get('round_trips_total')} round trips, fingerprint "
                      f"{s.get('fingerprint')}; settings {json.dumps(s['settings']['sweep'])}")
+        cavity = s['settings'].get('cavity', {})
+        if 'scheme' in cavity:
+            lines.append(f"- solver of all the data: {cavity['scheme']}, "
+                         f"{cavity['steps_per_round_trip']} steps per round trip "
+                         '(`docs/solver.md`)')
     if 'oracle' in data:
         o = data['oracle']
         lines.append(f"- oracle envelope: {o['k_points']} K values, mean O* "

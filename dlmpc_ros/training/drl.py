@@ -79,10 +79,10 @@ class DRLConfig:
     conditions: tuple[DRLCondition, ...] = CONDITIONS
     episode_periods: int = 200
     """Periods of an episode (2,000 round trips)."""
-    solver: dict = field(default_factory=lambda: {'steps_per_round_trip': 8})
-    """The training cavity's solver: the default grid (256 points) with 8 split steps per
-    round trip instead of 32, about 3x faster, its O within about 0.004 of the default's
-    (docs/gym.md)."""
+    solver: dict = field(default_factory=lambda: {'scheme': 'strang', 'steps_per_round_trip': 8})
+    """The training cavity's solver: the default grid (256 points) with 8 symmetric split
+    steps per round trip (the shipped policy's; before 2026-12-05 the default was 32 of
+    them), its O within about 0.004 of the default's (docs/gym.md)."""
     plant: str = 'family'
     """``family`` (a plant per reset, :class:`DevelopmentPlants`) or ``nominal``."""
     features: PolicyFeatures = field(default_factory=PolicyFeatures)

@@ -44,7 +44,8 @@ from dlmpc_ros.core import checks
 from dlmpc_ros.core.angles import angle_distance, wrap_angles
 from dlmpc_ros.core.cavity import Cavity
 from dlmpc_ros.core.config import BIREFRINGENCE_RANGE, CavityConfig
-from dlmpc_ros.core.plants import PlantFamily, plant_fingerprint, plant_parameters
+from dlmpc_ros.core.plants import (PHYSICS_FIELDS, PlantFamily, plant_fingerprint,
+                                   plant_parameters)
 from dlmpc_ros.core.steady import run_to_steady
 from dlmpc_ros.core.symmetry import mirror_angles, mirror_fields
 from dlmpc_ros.learning.tables import read_npz, write_npz
@@ -491,10 +492,12 @@ def cache_dir() -> Path:
     return Path(base) / 'dlmpc_ros'
 
 
-def _settings_key(cfg: PlantEnvelopeConfig, tables: dict[str, np.ndarray]) -> str:
-    """What a cached result depends on besides the plant: the search settings and the
-    nominal tables it starts from."""
-    digest = hashlib.sha256(json.dumps(cfg.to_dict(), sort_keys=True).encode())
+def _settings_key(cfg: PlantEnvelopeConfig, tables: dict[str, np.ndarray],
+                  cavity: CavityConfig) -> str:
+    """What a cached result depends on besides the plant's physics: the search settings,
+    the solver (grid and scheme) and the nominal tables it starts from."""
+    solver = {k: v for k, v in cavity.to_dict().items() if k not in PHYSICS_FIELDS}
+    digest = hashlib.sha256(json.dumps([cfg.to_dict(), solver], sort_keys=True).encode())
     for key in ('K', *SEED_TABLES):
         if key in tables:
             digest.update(np.ascontiguousarray(tables[key], float).tobytes())
@@ -514,7 +517,7 @@ def envelope_paths(cavity_cfg: CavityConfig, tables: dict[str, np.ndarray],
     """Where :func:`cached_plant_envelope` keeps the plant's base envelope and its
     continued envelope."""
     directory = Path(directory or cache_dir()) / 'envelopes'
-    settings = _settings_key(cfg or PlantEnvelopeConfig(), tables)
+    settings = _settings_key(cfg or PlantEnvelopeConfig(), tables, cavity_cfg)
     stem = f'{plant_fingerprint(cavity_cfg)}-{settings}'
     key = _continuation_key(continuation or ContinuationConfig())
     return directory / f'{stem}.npz', directory / 'continued' / f'{stem}-{key}.npz'
@@ -594,7 +597,8 @@ def draw_plant(family: PlantFamily, seed: int, tables: dict[str, np.ndarray],
     cfg = cfg or PlantEnvelopeConfig()
     directory = Path(directory or cache_dir()) / 'draws'
     family_key = hashlib.sha256(json.dumps(family.to_dict(), sort_keys=True).encode())
-    path = directory / f'{family_key.hexdigest()[:8]}-{_settings_key(cfg, tables)}-{seed}.json'
+    settings = _settings_key(cfg, tables, family.draw(seed, 0))
+    path = directory / f'{family_key.hexdigest()[:8]}-{settings}-{seed}.json'
     if path.is_file():
         attempt = int(json.loads(path.read_text())['attempt'])
         return family.draw(seed, attempt), attempt

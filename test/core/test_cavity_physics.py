@@ -17,13 +17,17 @@ def _transparent(cavity: Cavity) -> None:
     cavity._transfer[:] = np.eye(2)
 
 
-def test_energy_conserved_without_gain_loss_and_jones():
-    cfg = CavityConfig(pump=0.0, loss=0.0, gain_bandwidth=0.0, steps_per_round_trip=16)
+@pytest.mark.parametrize('scheme, rtol', [('strang', 1e-12), ('richardson4', 1e-6)])
+def test_energy_conserved_without_gain_loss_and_jones(scheme, rtol):
+    """Each symmetric step is unitary; the extrapolation's sum of two is not, and keeps
+    the energy only to its order (5e-8 here)."""
+    cfg = CavityConfig(pump=0.0, loss=0.0, gain_bandwidth=0.0, steps_per_round_trip=16,
+                       scheme=scheme)
     cavity = Cavity(cfg, birefringence=0.2)
     _transparent(cavity)
     start = Grid.from_config(cfg).dt * np.sum(np.abs(np.stack(cavity.fields())) ** 2)
     energies = cavity.run(5).energy[:, 0]
-    np.testing.assert_allclose(energies, start, rtol=1e-12)
+    np.testing.assert_allclose(energies, start, rtol=rtol)
 
 
 def test_lossless_split_step_matches_dop853_field_energy_and_shape():

@@ -1,6 +1,8 @@
 """The integration schemes of the fiber pass: order of convergence against DOP853, the
 fastest settings' accuracy, batches, and the setting's validation."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -83,8 +85,13 @@ def test_batch_equals_loop_of_single_lasers(scheme):
         np.testing.assert_allclose(batch.M[:, b], single.M[:, 0], rtol=1e-12)
 
 
-def test_the_scheme_is_validated_and_the_default_unchanged():
-    assert CavityConfig().scheme == 'strang' and CavityConfig().steps_per_round_trip == 32
+def test_the_scheme_is_validated_and_each_brings_its_own_steps():
+    assert CavityConfig().scheme == 'richardson4' and CavityConfig().steps == 6
+    assert replace(CavityConfig(), scheme='strang').steps == 32  # the data of old
+    assert CavityConfig(scheme='strang', steps_per_round_trip=36).steps == 36
+    assert CavityConfig().to_dict()['steps_per_round_trip'] == 6  # records say what ran
+    with pytest.raises(ValueError, match='steps_per_round_trip'):
+        CavityConfig(steps_per_round_trip=-1)
     for bad in ('rk45', '', 4, None, True):
         with pytest.raises(ValueError, match='scheme'):
             CavityConfig(scheme=bad)

@@ -8,7 +8,7 @@ from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.drift import make_scenario
 from dlmpc_ros.evaluation.closed_loop import random_initial_angles, run_closed_loop
 
-SMALL = CavityConfig(points=64, steps_per_round_trip=8)
+SMALL = CavityConfig(points=64, steps_per_round_trip=8, scheme='strang')
 
 
 def test_commands_apply_from_the_next_round_trip_at_servo_speed():

@@ -53,16 +53,16 @@ def test_a_tiny_benchmark_runs_cold_starts_from_noise_and_repeats_itself():
 def test_a_task_runs_the_dl_mpc_with_the_settings_it_is_given():
     """The variant runner's lock mode hands its settings through the task: without the
     acquisition scan, a start that the shipped DL-MPC locks by scanning stays unlocked
-    (start 3; start 0 locks without the scan too since the numbers of 2026-12-04)."""
+    (start 9 of the models of 2026-12-05; start 0 locks without the scan too)."""
     tables = load_baselines(models_dir() / 'oracle.npz')
     spec = LockSpec('dlmpc', starts=2, budget=400, hold_periods=5)
 
     def locked(config: DLMPCConfig | None) -> list[bool]:
-        task = LockTask(spec, (0, 3), str(models_dir()), tables['K'], tables['O_star'], config)
+        task = LockTask(spec, (0, 9), str(models_dir()), tables['K'], tables['O_star'], config)
         return [s['locked'] for s in run_starts(task)]
 
     assert locked(None) == [True, True]
-    assert locked(DLMPCConfig(acquisition=None))[1] is False  # start 3 needs the scan
+    assert locked(DLMPCConfig(acquisition=None))[1] is False  # start 9 needs the scan
 
 
 def test_a_budget_sweep_scores_each_budget_as_a_run_of_that_budget_would():

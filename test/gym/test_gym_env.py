@@ -12,7 +12,7 @@ from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.plants import PHYSICS_FIELDS, PlantFamily
 
 ENV = 'dlmpc_ros.gym:ModeLockedLaser-v0'
-SMALL = {'points': 64, 'steps_per_round_trip': 8}
+SMALL = {'points': 64, 'steps_per_round_trip': 8, 'scheme': 'strang'}
 
 
 def make(**options):

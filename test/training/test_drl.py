@@ -18,7 +18,7 @@ from dlmpc_ros.learning.policy import FILE_NAME, SPEC_NAME, load_policy, save_po
 from dlmpc_ros.training.drl import (DevelopmentPlants, DRLCondition, DRLConfig, LaserVecEnv,
                                     exported_policy, make_envs, make_model)
 
-SMALL = {'points': 64, 'steps_per_round_trip': 8}
+SMALL = {'points': 64, 'steps_per_round_trip': 8, 'scheme': 'strang'}
 
 
 def _config(algorithm='ppo', total_steps=64):

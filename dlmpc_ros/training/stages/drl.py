@@ -36,7 +36,7 @@ def quick_config(seed: int) -> DRLConfig:
     return DRLConfig(seed=seed, total_steps=256, episode_periods=32,
                      conditions=(DRLCondition('held', 'noise', 2),
                                  DRLCondition('drift', 'sech', 2)),
-                     solver={'points': 64, 'steps_per_round_trip': 8},
+                     solver={'points': 64, 'steps_per_round_trip': 8, 'scheme': 'strang'},
                      ppo={**base.ppo, 'n_steps': 32, 'batch_size': 64, 'n_epochs': 2})
 
 
