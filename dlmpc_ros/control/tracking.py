@@ -12,11 +12,8 @@ reads the true K.
 
 It takes over from the inner loop once the laser has been locked for ``entry_patience``
 periods (moving onto the curve at ``start``), and hands back when O under tracking falls
-below ``guard`` x the O measured just before it took over (then waits ``cooldown``
-periods, twice as long after each failed entry, before trying again). Where the curve is
-flat the estimate can rest on a plateau away from K; when O stays below ``survey_ratio``
-x the curve's own steady O at the estimate (on this laser's own scale of O), it surveys
-the whole curve once and continues from the best point it saw.
+below ``guard`` x the O measured just before it took over (then waits ``COOLDOWN``
+periods, twice as long after each failed entry, before trying again).
 
 The curve is best for K < 0 only: the cavity's mirror symmetry
 (:mod:`dlmpc_ros.core.symmetry`) gives its twin ``m(s) = c(-s) + pi/2`` (every element
@@ -73,6 +70,24 @@ ROTATION_LIMIT = 1.0
 #: the predictor's data (-0.87 rad) and a development run lost 0.17. Chosen on the
 #: development plants (``bench/results/rotation_spread.md``).
 ROTATION_SPREAD = 0.1
+#: Relative O difference below which the estimate does not move.
+DEADBAND = 5e-5
+#: Periods to wait after handing back before trying again (doubled, up to 64 x, after each
+#: failed entry).
+COOLDOWN = 50
+#: The O before a turn, which its guard and its verification judge by, is the median of
+#: the 3 latest periods (not the period's own O). A pulse just formed from noise swings by
+#: a factor of two between periods, and a turn begun on a crest was given up at the next
+#: trough (``bench/results/entry_turn.md``).
+TURN_REFERENCE = 3
+#: The trial compares the mean O of the last 2 dither blocks (an even number spans both
+#: signs of the dither) with the best such mean since the branch was chosen (rather than a
+#: block's O against the best block: the best of many single noisy blocks sits some
+#: standard deviations of the noise above the laser's O, so noise alone made the tracker
+#: try the twin). Chosen on the development plants: 1 % noise on E and M cost 0.004 with
+#: it (and the survey's averaged scale, since removed), 0.017 with neither, at 0.002
+#: without noise (``bench/results/noise_levels.md``).
+TRIAL_BLOCKS = 2
 
 
 @dataclass(frozen=True)
@@ -89,8 +104,6 @@ class TrackingConfig:
     """First change of the estimate after a compared block; it grows by ``RPROP_GROW``
     while the comparisons agree in sign and shrinks by ``RPROP_SHRINK`` when they flip
     (Rprop), within [``MIN_STEP``, ``MAX_STEP``]."""
-    deadband: float = 5e-5
-    """Relative O difference below which the estimate does not move."""
     noise_deadband: float = 1.0
     """If > 0: the estimate also does not move while the compared difference is under
     this many standard deviations of the measurement noise of such a difference, the
@@ -106,34 +119,6 @@ class TrackingConfig:
     """Fraction of the O measured before entry under which tracking is failing."""
     guard_periods: int = 3
     """Consecutive periods below ``guard`` x the entry O that hand back to the inner loop."""
-    cooldown: int = 50
-    """Periods to wait after handing back before trying again (doubled, up to 64 x,
-    after each failed entry)."""
-    survey_ratio: float = 0.93
-    """O below this fraction of the curve's own steady O at the estimate, on the laser's
-    own scale of O, for ``survey_patience`` periods means the estimate sits on a plateau
-    away from K: survey. The laser's scale is the best ratio of measured O to the
-    curve's O over the last ``survey_cooldown`` periods of tracking; without it a laser
-    with less O than the nominal cavity surveyed every ``survey_cooldown`` periods and one
-    with more never did (development plants 0.956 against 0.932,
-    ``bench/results/survey_scale.md``)."""
-    survey_scale_window: int = 10
-    """Each of those ratios is the mean over this many consecutive tracking periods (1: one
-    period's): the best of 300 single noisy periods sits about three standard deviations
-    of the noise above the laser's typical ratio and raises the level. Chosen with
-    ``trial_blocks`` on the development plants (``bench/results/noise_levels.md``)."""
-    survey_patience: int = 20
-    """Periods under the survey level before the survey starts."""
-    survey_spacing: float = 0.05
-    """Distance between the curve points the survey visits (K units)."""
-    survey_dwell: int = 3
-    """Periods the survey waits at each point (twice that at the first). The survey glides
-    to its first point (the curve's end nearest the estimate) through the points in
-    between, one per period, and jumps back to the best point, where a jump forms that
-    point's own pulse: a jump of 0.25 rad costs a round trip under half of O*
-    (``bench/results/tracker_moves.md``)."""
-    survey_cooldown: int = 300
-    """Periods after a survey before the next may start."""
     mirror_margin: float = 0.03
     """How far past K = 0 the estimate must go before the tracker turns to the other
     branch (hysteresis, K units)."""
@@ -148,22 +133,9 @@ class TrackingConfig:
     the way round is kept, and the next entries make no entry trial until a turn is kept
     (a pulse at 0.8 O* was otherwise lost to the same trial at each entry;
     ``bench/results/entry_turn.md``)."""
-    turn_reference: int = 3
-    """The O before a turn, which its guard and its verification judge by, is the median
-    of this many latest periods (1: the period's own O). A pulse just formed from noise
-    swings by a factor of two between periods, and a turn begun on a crest was given up
-    at the next trough (``bench/results/entry_turn.md``)."""
     trial_drop: float = 0.08
     """Relative fall of O under its best since the branch was chosen that makes the
     tracker try the other branch (0: only the estimate decides)."""
-    trial_blocks: int = 2
-    """The trial compares the mean O of the last this many dither blocks (an even number
-    spans both signs of the dither) with the best such mean since the branch was chosen
-    (1: a block's O against the best block; the best of many single noisy blocks sits
-    some standard deviations of the noise above the laser's O, so noise alone made the
-    tracker try the twin). Chosen with ``survey_scale_window`` on the development plants:
-    1 % noise on E and M costs 0.004 with both, 0.017 with neither, at 0.002 without
-    noise (``bench/results/noise_levels.md``)."""
     entry_trial_after: int = 6
     """Periods after an entry (from the scan or the inner loop) before the entry trial: the
     other branch is tried once (the scan stops at the first point that passes the lock
@@ -179,25 +151,17 @@ class TrackingConfig:
 
     def __post_init__(self) -> None:
         if not (self.dither > 0 and MIN_STEP <= self.step <= MAX_STEP
-                and self.deadband >= 0 and self.noise_deadband >= 0):
+                and self.noise_deadband >= 0):
             raise ValueError(f'need dither > 0, {MIN_STEP} <= step <= {MAX_STEP}, '
-                             'deadband >= 0 and noise_deadband >= 0')
-        if min(self.block, self.entry_patience, self.guard_periods, self.cooldown) < 1 \
+                             'noise_deadband >= 0')
+        if min(self.block, self.entry_patience, self.guard_periods) < 1 \
                 or self.settle < 0:
-            raise ValueError('block, entry_patience, guard_periods and cooldown must be '
+            raise ValueError('block, entry_patience and guard_periods must be '
                              '>= 1 and settle >= 0')
         if not 0 < self.guard <= 1:
             raise ValueError(f'guard must be in (0, 1], got {self.guard}')
-        if not (0 < self.survey_ratio <= 1 and self.survey_spacing > 0) \
-                or min(self.survey_patience, self.survey_dwell, self.survey_cooldown) < 1:
-            raise ValueError('survey_ratio must be in (0, 1], survey_spacing > 0 and the '
-                             'survey periods >= 1')
-        if self.trial_blocks < 1:
-            raise ValueError(f'trial_blocks must be >= 1, got {self.trial_blocks}')
-        if self.survey_scale_window < 1:
-            raise ValueError(f'survey_scale_window must be >= 1, got {self.survey_scale_window}')
-        if self.entry_trial_after < 0 or self.turn_reference < 1:
-            raise ValueError('need entry_trial_after >= 0 and turn_reference >= 1')
+        if self.entry_trial_after < 0:
+            raise ValueError(f'entry_trial_after must be >= 0, got {self.entry_trial_after}')
         if not self.entry_trial_below >= 0:
             raise ValueError(f'entry_trial_below must be >= 0, got {self.entry_trial_below}')
         if not (self.mirror_margin >= 0
@@ -212,22 +176,19 @@ class TrackerState(Enum):
     IDLE -> DITHER (entry: locked for ``entry_patience`` periods after the cooldown, or
     where the scan locked); DITHER -> TURN (the estimate past ``mirror_margin``, a fall
     of ``trial_drop``, or the entry trial), TURN -> DITHER (kept, returned or abandoned);
-    DITHER -> SURVEY (O under the survey level for ``survey_patience``), SURVEY -> DITHER
-    (from the best point seen); DITHER -> IDLE (under the guard right after entry; later
-    it restarts at ``start``); any -> IDLE (the scan takes over)."""
+    DITHER -> IDLE (under the guard right after entry; later it restarts at ``start``);
+    any -> IDLE (the scan takes over)."""
 
     IDLE = 'idle'      # not tracking: waiting for a lock and the cooldown
     DITHER = 'dither'  # on the curve, dithering the estimate (and planning turns)
-    SURVEY = 'survey'  # visiting the curve's points for a better one
     TURN = 'turn'      # changing branch (BranchTurn)
 
 
 #: The tracker's changes of state from one period to the next (:class:`TrackerState`).
 TRACKER_TRANSITIONS = frozenset({
     (TrackerState.IDLE, TrackerState.DITHER), (TrackerState.DITHER, TrackerState.TURN),
-    (TrackerState.TURN, TrackerState.DITHER), (TrackerState.DITHER, TrackerState.SURVEY),
-    (TrackerState.SURVEY, TrackerState.DITHER), (TrackerState.DITHER, TrackerState.IDLE),
-    (TrackerState.TURN, TrackerState.IDLE), (TrackerState.SURVEY, TrackerState.IDLE)})
+    (TrackerState.TURN, TrackerState.DITHER), (TrackerState.DITHER, TrackerState.IDLE),
+    (TrackerState.TURN, TrackerState.IDLE)})
 
 
 class TurnPlanner(Protocol):
@@ -249,7 +210,8 @@ class CurveTracker:
     ``grid`` (n,) increasing curve parameters and ``angles`` (n, 4) [rad] the curve's
     angle sets, continuous along the grid; ``threshold`` is the objective at and above
     which the laser counts as locked (E/M units); ``expected`` (n,), the steady O on the
-    curve at each grid point, enables the survey (None: no survey). ``limits`` are the
+    curve at each grid point, lets the entry trial judge whether O is weak (None: it always
+    is). ``limits`` are the
     servo limits a change of branch must stay inside (default: :class:`AngleLimits`).
     ``planner`` turns the curve every ``PLAN_EVERY`` dither blocks (None: never).
     """
@@ -273,24 +235,17 @@ class CurveTracker:
         self._recent: deque[float] = deque(maxlen=self.config.entry_patience)
         self._entry_objective = 0.0
         self._wait = 0            # cooldown periods left
-        self._cooldown = self.config.cooldown
+        self._cooldown = COOLDOWN
         self._blocks: deque[tuple[float, float]] = deque(maxlen=3)  # (sign, O)
         #: |change of log O| between consecutive periods of a block (same angles): noise
         self._jitter: deque[float] = deque(maxlen=64)
-        #: O of the latest ``turn_reference`` periods (the O before a turn is their median)
-        self._latest: deque[float] = deque(maxlen=self.config.turn_reference)
+        #: O of the latest ``TURN_REFERENCE`` periods (the O before a turn is their median)
+        self._latest: deque[float] = deque(maxlen=TURN_REFERENCE)
         self.rotation = CurveRotation(self.grid[0], self.grid[-1], ROTATION_KNOTS,
                                       ROTATION_LIMIT, ROTATION_SPREAD)
         self.planner = planner
         self._turn_at = 0.0  # the curve point u of the latest planned turn
         self.planned = 0.0
-        self._survey_wait = 0
-        #: measured O over the curve's O, recent tracking periods (the laser's own scale)
-        self._scale: deque[float] = deque(maxlen=self.config.survey_cooldown)
-        #: the last ``survey_scale_window`` single-period ratios, averaged into ``_scale``
-        self._scale_window: deque[float] = deque(maxlen=self.config.survey_scale_window)
-        self._survey_seen: list[tuple[float, float]] = []  # (point, O)
-        self._dwell = 0
         self._recentre()          # estimate at start; age, guard, dither and steps reset
 
     @property
@@ -300,7 +255,7 @@ class CurveTracker:
             return TrackerState.IDLE
         if self.turner.busy:
             return TrackerState.TURN
-        return TrackerState.SURVEY if self._survey else TrackerState.DITHER
+        return TrackerState.DITHER
 
     def curve(self, s: float) -> np.ndarray:
         """The angles (4,) [rad] at parameter ``s`` (clipped to the grid) on the branch the
@@ -339,7 +294,6 @@ class CurveTracker:
 
     def interrupt(self) -> None:
         """Something else took over (the acquisition scan): stop and wait a cooldown."""
-        self._survey, self._approach = [], []
         self.turner.cancel()
         if self.active:
             self._forget_unjudged_turn()
@@ -364,8 +318,6 @@ class CurveTracker:
         self.turner.tick()
         if self.state is TrackerState.TURN:
             return self._turning(float(objective))
-        if self.state is TrackerState.SURVEY:
-            return self._survey_step(float(objective))
         if self._age > self.config.settle:
             bad = not (np.isfinite(objective)
                        and objective >= self.config.guard * self._entry_objective)
@@ -378,9 +330,7 @@ class CurveTracker:
                     self._leave(failed=True)
                     return None
             if self._age == self.config.settle + 2 * self.config.block:
-                self._cooldown = self.config.cooldown  # a successful entry resets it
-            if self._should_survey(float(objective)):
-                return self._start_survey()
+                self._cooldown = COOLDOWN  # a successful entry resets it
         if self._entry_trial and self._age > self.config.entry_trial_after \
                 and current is not None:
             self._entry_trial = False
@@ -409,7 +359,7 @@ class CurveTracker:
 
     def _wants_other_branch(self) -> bool:
         """Whether to try the other branch: the estimate has gone past the margin onto its
-        side, or the mean O of the last ``trial_blocks`` blocks has fallen ``trial_drop``
+        side, or the mean O of the last ``TRIAL_BLOCKS`` blocks has fallen ``trial_drop``
         under the best such mean since the branch was chosen (and no turn is cooling
         down)."""
         cfg = self.config
@@ -440,53 +390,6 @@ class CurveTracker:
             self._age = min(self._age, self.config.settle)  # let the guard settle again
         return self.curve(self.estimate) if command is None else command
 
-    def _should_survey(self, objective: float) -> bool:
-        if self._survey_wait > 0:
-            self._survey_wait -= 1
-        if self.expected is None:
-            return False
-        expected = self.expected_objective(self.estimate)
-        level = self.config.survey_ratio * expected
-        if expected > 0 and np.isfinite(objective):
-            self._scale_window.append(objective / expected)
-            self._scale.append(sum(self._scale_window) / len(self._scale_window))
-            # the laser's scale: the best recent ratio
-            level *= max(self._scale)
-        self._short = self._short + 1 if not objective >= level else 0
-        return self._short >= self.config.survey_patience and self._survey_wait == 0
-
-    def _start_survey(self) -> np.ndarray:
-        """Visit the curve at ``survey_spacing`` from the end nearest the estimate."""
-        points = np.arange(self.grid[0], self.grid[-1] + 1e-9, self.config.survey_spacing)
-        if self.grid[-1] - self.estimate < self.estimate - self.grid[0]:
-            points = points[::-1]
-        self._survey, self._survey_seen = [float(p) for p in points], []
-        self._dwell, self._short = -self.config.survey_dwell, 0  # first point: twice as long
-        self._approach = self._path(self.estimate, self._survey[0])
-        return self.curve(self._approach[0] if self._approach else self._survey[0])
-
-    def _path(self, start: float, end: float) -> list[float]:
-        """Curve points from ``start`` toward ``end``, ``survey_spacing`` apart, both left
-        out."""
-        count = int(np.ceil(abs(end - start) / self.config.survey_spacing))
-        return [start + (end - start) * i / count for i in range(1, count)]
-
-    def _survey_step(self, objective: float) -> np.ndarray:
-        if self._approach:  # still on the way to the first point
-            self._approach.pop(0)
-            return self.curve(self._approach[0] if self._approach else self._survey[0])
-        self._dwell += 1
-        if self._dwell >= self.config.survey_dwell:
-            self._survey_seen.append((self._survey.pop(0), objective))
-            self._dwell = 0
-            if not self._survey:  # done: continue from the best point seen
-                best = max(self._survey_seen, key=lambda seen: seen[1])[0]
-                self._recentre()
-                self.estimate = best
-                self._survey_wait = self.config.survey_cooldown
-                return self._command()
-        return self.curve(self._survey[0])
-
     def _maybe_enter(self, objective: float, locked: bool) -> np.ndarray | None:
         if self._wait > 0:
             self._wait -= 1
@@ -506,14 +409,12 @@ class CurveTracker:
 
     def _recentre(self) -> None:
         """Put the estimate back to ``start`` and the dither to its first block."""
-        # periods since entry; consecutive periods under the guard and under the survey level
-        self._age, self._low, self._short = 0, 0, 0
+        # periods since entry; consecutive periods under the guard
+        self._age, self._low = 0, 0
         self._settling: list[float] = []  # O measured while settling after entry
         self._branch_best = 0.0  # best block O since the branch was last chosen
-        #: O of the last ``trial_blocks`` blocks since then (their mean: the trial's O)
-        self._trial_values: deque[float] = deque(maxlen=self.config.trial_blocks)
-        self._survey: list[float] = []  # survey points still to visit
-        self._approach: list[float] = []  # curve points on the way to the first of them
+        #: O of the last ``TRIAL_BLOCKS`` blocks since then (their mean: the trial's O)
+        self._trial_values: deque[float] = deque(maxlen=TRIAL_BLOCKS)
         self._entry_trial = False  # the other branch is still to be tried after entry
         # the start point on the branch the tracker is on (its twin on the mirror branch)
         self.estimate = self.branch * float(np.clip(self.config.start, self.grid[0],
@@ -546,18 +447,18 @@ class CurveTracker:
         self._recent.clear()
         self._wait = self._cooldown
         if failed:
-            self._cooldown = min(2 * self._cooldown, 64 * self.config.cooldown)
+            self._cooldown = min(2 * self._cooldown, 64 * COOLDOWN)
 
     def _deadband(self) -> float:
-        """The relative O difference under which the estimate holds: ``deadband``, or
+        """The relative O difference under which the estimate holds: ``DEADBAND``, or
         ``noise_deadband`` standard deviations of the compared difference's noise if
         larger (a block's O is its last period's; the difference weighs three blocks 1,
         1/2, 1/2, so its variance is 1.5 times a period's; averaging a block's periods
         did not pay, ``bench/results/noise_block.md``)."""
         cfg = self.config
         if cfg.noise_deadband <= 0 or len(self._jitter) < 8:
-            return cfg.deadband
-        return max(cfg.deadband,
+            return DEADBAND
+        return max(DEADBAND,
                    cfg.noise_deadband * self.noise() * np.sqrt(1.5))
 
     def noise(self) -> float:
@@ -581,9 +482,9 @@ class CurveTracker:
         self._sign = -self._sign
         if self._age > cfg.settle and cfg.trial_drop > 0 and np.isfinite(objective):
             self._trial_values.append(objective)
-            if len(self._trial_values) == cfg.trial_blocks:
+            if len(self._trial_values) == TRIAL_BLOCKS:
                 self._branch_best = max(self._branch_best, sum(self._trial_values)
-                                        / cfg.trial_blocks)
+                                        / TRIAL_BLOCKS)
         if len(self._blocks) == 3 and self._age > cfg.settle:
             (_, before), (sign, middle), (_, after) = self._blocks
             difference = sign * (middle - 0.5 * (before + after))   # O(+) - O(-)

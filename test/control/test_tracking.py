@@ -10,7 +10,8 @@ from dlmpc_ros.control.branch_turn import TURN_STEP, TurnEvent
 from dlmpc_ros.control.dlmpc import DLMPCController
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.tracking import (TRACKER_TRANSITIONS, CurveTracker, TrackerState,
+from dlmpc_ros.control import tracking
+from dlmpc_ros.control.tracking import (COOLDOWN, TRACKER_TRANSITIONS, CurveTracker, TrackerState,
                                         TrackingConfig)
 from dlmpc_ros.core.symmetry import QUARTER_TURN
 from dlmpc_ros.learning.kmap import KMap, KMapConfig
@@ -79,7 +80,7 @@ def test_a_block_is_judged_by_the_o_of_its_last_period():
 
 
 def test_flat_objective_inside_the_deadband_leaves_the_estimate_alone():
-    cfg = TrackingConfig(entry_patience=1, settle=0, deadband=1e-3)
+    cfg = TrackingConfig(entry_patience=1, settle=0)
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
     o = 0.2
     for _ in range(100):
@@ -121,7 +122,7 @@ def test_the_noise_deadband_reads_the_noise_off_the_run_and_holds_the_estimate_a
 
 def test_guard_recentres_then_hands_back_and_waits_a_growing_cooldown():
     cfg = TrackingConfig(entry_patience=2, settle=4, guard=0.9, guard_periods=2,
-                         block=2, cooldown=10, start=0.0)
+                         block=2, start=0.0)
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
     _drive(tracker, lambda t: 0.0, 40)
     assert tracker.active
@@ -132,9 +133,9 @@ def test_guard_recentres_then_hands_back_and_waits_a_growing_cooldown():
     for _ in range(cfg.settle + 2):
         last = tracker.step(0.15)                 # still poor right after the recentre
     assert last is None and not tracker.active    # handed back
-    assert sum(tracker.step(0.2) is not None for _ in range(10)) == 0  # cooldown 10
+    assert sum(tracker.step(0.2) is not None for _ in range(COOLDOWN)) == 0
     # The failed entry doubled the cooldown for the next failure.
-    assert tracker._cooldown == 20
+    assert tracker._cooldown == 2 * COOLDOWN
 
 
 class _NoisePlanner:
@@ -151,111 +152,13 @@ class _NoisePlanner:
         return 0.0
 
 
-def _peak_moved_away(s: float, t: int, start: float) -> float:
-    """A toy laser whose peak sits at ``start`` for 50 periods, then (K jumped) at
-    s = 0.2 with a plateau of 0.17 for s < 0.05."""
-    if t < 50:
-        return 0.2 - 0.3 * (s - start) ** 2
-    return 0.17 if s < 0.05 else 0.2 - 0.3 * (s - 0.2) ** 2
-
-
-def test_survey_leaves_a_plateau_for_the_best_point_of_the_curve():
-    """K jumps and leaves the laser on a plateau (0.85 of what it showed) with the peak
-    far away: the local dither cannot see the peak, the survey finds it."""
-    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.2, survey_patience=10,
-                         survey_spacing=0.05, survey_dwell=2)
-    expected = np.full(GRID.size, 0.2)
-    tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg, expected=expected)
-    o = 0.2
-    for t in range(250):
-        o = _peak_moved_away(tracker.step(o)[0] / 2, t, cfg.start)
-    assert tracker.active and abs(tracker.estimate - 0.2) < 0.06
-    assert o > 0.19
-    # without the curve's expected O there is no survey: it stays on the plateau
-    stuck = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
-    o = 0.2
-    for t in range(250):
-        o = _peak_moved_away(stuck.step(o)[0] / 2, t, cfg.start)
-    assert stuck.estimate < 0.0
-
-
-def test_the_survey_glides_to_its_first_point_through_the_curve_s_points():
-    """A jump of the servos to the curve's end costs a dip of O: the survey reaches its
-    first point (0.3 away) one ``survey_spacing`` per period, then visits the curve and
-    finds the peak; it jumps back to the best point only."""
-    cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0, survey_patience=10,
-                         survey_spacing=0.05, survey_dwell=2)
-    tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg,
-                           expected=np.full(GRID.size, 0.2))
-    o, s, moves = 0.2, None, []
-    for t in range(250):
-        cmd = tracker.step(o)
-        if tracker.state is TrackerState.SURVEY and s is not None:
-            moves.append(abs(cmd[0] / 2 - s))
-        s = cmd[0] / 2
-        o = _peak_moved_away(s, t, cfg.start)
-    assert len(moves) > 6 + 2 * 13 and max(moves) <= 0.05 + 1e-9
-    assert abs(tracker.estimate - 0.2) < 0.06
-
-
-def test_the_survey_level_can_follow_the_laser_s_own_scale_of_o():
-    """A laser with 30 % less O than the curve's own, resting at its peak: on the curve's
-    scale it is always 'under the survey level' and surveys again and again; on its own
-    scale (the best O / curve O it showed lately) it never does."""
-    expected = np.full(GRID.size, 0.2)
-
-    cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0, survey_patience=10,
-                         survey_cooldown=50)
-    tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg, expected=expected)
-    o, started = 0.14, 0
-    for _ in range(600):
-        before = tracker.state is TrackerState.SURVEY
-        o = 0.7 * _objective(tracker.step(o), 0.0)
-        started += tracker.state is TrackerState.SURVEY and not before
-    assert started == 0
-    # it still surveys when its O falls under what it showed lately
-    cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0, survey_patience=10,
-                         survey_cooldown=200)
-    tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg, expected=expected)
-    o, surveyed = 0.14, False
-    for t in range(400):
-        o = (0.7 if t < 200 else 0.6) * _objective(tracker.step(o), 0.0)
-        surveyed |= t >= 200 and bool(tracker._survey)
-    assert surveyed
-
-
-def test_noise_alone_does_not_make_a_small_fall_of_o_look_like_a_plateau():
-    """2 % noise on O, the laser resting at its peak, then 5 % less O (above the survey
-    ratio of 0.93): the best of 300 single noisy periods sits 6 % over the laser's O and
-    the fall looks like a plateau, the best of 10-period means does not."""
-    expected = np.full(GRID.size, 0.2)
-
-    def surveys(window: int, noise: float) -> int:
-        cfg = TrackingConfig(entry_patience=1, settle=0, start=0.0,
-                             survey_scale_window=window)
-        tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg, expected=expected)
-        rng, o, started = np.random.default_rng(3), 0.2, 0
-        for t in range(1200):
-            before = bool(tracker._survey)
-            gain = 1.0 if t < 600 else 0.95
-            o = gain * _objective(tracker.step(o), 0.0) * (1 + noise * rng.standard_normal())
-            started += t >= 600 and bool(tracker._survey) and not before
-        return started
-
-    assert surveys(1, 0.0) == 0 and surveys(10, 0.0) == 0
-    assert surveys(1, 0.02) >= 1
-    assert surveys(10, 0.02) == 0
-    with pytest.raises(ValueError, match='survey_scale_window'):
-        TrackingConfig(survey_scale_window=0)
-
-
 def test_interrupt_stops_tracking():
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1,
-                           config=TrackingConfig(entry_patience=1, cooldown=3))
+                           config=TrackingConfig(entry_patience=1))
     assert tracker.step(0.2) is not None
     tracker.interrupt()
     assert not tracker.active
-    assert [tracker.step(0.2) is None for _ in range(4)] == [True, True, True, False]
+    assert [tracker.step(0.2) is None for _ in range(COOLDOWN + 1)] == [True] * COOLDOWN + [False]
 
 
 def _mirrored_objective(cmd: np.ndarray, k: float, angles: np.ndarray = ANGLES,
@@ -340,16 +243,19 @@ def test_where_the_estimate_says_nothing_a_fall_of_o_makes_the_tracker_try_the_t
     assert silent.branch == 1 and np.mean(o_silent[-100:]) < 0.185
 
 
-def test_noise_alone_makes_the_tracker_try_the_twin_less_where_the_trial_averages_blocks():
+def test_noise_alone_makes_the_tracker_try_the_twin_less_where_the_trial_averages_blocks(
+        monkeypatch):
     """K held on the curve's side, 2 % noise on O: the best of many single noisy blocks
     sits some standard deviations over the laser's O, so single blocks fall
     ``trial_drop`` under it by chance and the tracker tries the twin (and turns back);
     the mean of two blocks against the best such mean does so far less often. (The O
     a turn is judged by and the guard at its landing are the single period's and off:
     they end turns in other ways, and this is about what starts them.)"""
+    monkeypatch.setattr(tracking, 'TURN_REFERENCE', 1)
+
     def trials(blocks: int) -> int:
-        cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.15, trial_blocks=blocks,
-                             survey_ratio=1e-6, turn_reference=1)
+        monkeypatch.setattr(tracking, 'TRIAL_BLOCKS', blocks)
+        cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.15)
         tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
         rng, o, current = np.random.default_rng(5), 0.2, None
         for _ in range(6000):
@@ -361,8 +267,6 @@ def test_noise_alone_makes_the_tracker_try_the_twin_less_where_the_trial_average
 
     single, averaged = trials(1), trials(2)
     assert single >= 4 and averaged <= single / 2
-    with pytest.raises(ValueError, match='trial_blocks'):
-        TrackingConfig(trial_blocks=0)
 
 
 def test_after_an_acquisition_lock_the_tracker_tries_the_other_branch_once():
@@ -457,7 +361,8 @@ def test_the_entry_trial_comes_entry_trial_after_periods_after_the_entry():
         TrackingConfig(entry_trial_after=-1)
 
 
-def test_a_turn_begun_on_a_crest_of_o_is_judged_by_the_median_of_the_latest_periods():
+def test_a_turn_begun_on_a_crest_of_o_is_judged_by_the_median_of_the_latest_periods(
+        monkeypatch):
     """A pulse just formed from noise swings from period to period: the entry trial
     begins on a crest (0.3 among 0.15) and the next period is a trough (0.12). Judged
     against the crest (turn_reference 1) the turn is given up; against the median of the
@@ -465,12 +370,11 @@ def test_a_turn_begun_on_a_crest_of_o_is_judged_by_the_median_of_the_latest_peri
     guard of 0.35 (0.12 > 0.35 x 0.3)."""
     script = [0.15, 0.15, 0.3, 0.12, 0.15]
     for reference, guard, abandoned in ((3, 0.45, 0), (1, 0.45, 1), (1, 0.35, 0)):
-        cfg = TrackingConfig(entry_trial_after=2, turn_reference=reference,
-                             turn_guard=guard, trial_drop=0.0, mirror_margin=0.5)
+        monkeypatch.setattr(tracking, 'TURN_REFERENCE', reference)
+        cfg = TrackingConfig(entry_trial_after=2, turn_guard=guard, trial_drop=0.0,
+                             mirror_margin=0.5)
         tracker = _scripted_entry(cfg, script + [0.15] * 10)
         assert tracker.turner.abandoned == abandoned, (reference, guard)
-    with pytest.raises(ValueError, match='turn_reference'):
-        TrackingConfig(turn_reference=0)
 
 
 def test_a_turn_whose_pulse_goes_where_it_landed_is_taken_back_at_once():
@@ -509,13 +413,11 @@ def test_a_turn_stays_inside_the_servo_limits():
 
 
 @pytest.mark.parametrize('bad', [dict(dither=0), dict(step=-1), dict(block=0), dict(guard=0),
-                                 dict(guard=1.5), dict(settle=-1), dict(cooldown=0),
-                                 dict(survey_ratio=0), dict(survey_spacing=0),
-                                 dict(survey_dwell=0), dict(mirror_margin=-0.1),
+                                 dict(guard=1.5), dict(settle=-1),
+                                 dict(mirror_margin=-0.1),
                                  dict(step=0.001), dict(step=0.05),
                                  dict(turn_guard=0),
                                  dict(trial_drop=1.0), dict(trial_drop=-0.1),
-                                 dict(trial_blocks=0),
                                  dict(entry_trial_below=-0.1)])
 def test_bad_tracking_settings_are_rejected(bad):
     with pytest.raises(ValueError):
