@@ -205,10 +205,9 @@ class LockSupervisor:
         a step under pi/2 toward the nearest equivalent inside them (the servo limits take
         the equivalent nearest the servo, so a farther one is reached in such steps)."""
         angles = self._target.angles
-        room = TURN_ROOM
         if self.limits is None:
             return angles
-        low, high = self.limits.low + room, self.limits.high - room
+        low, high = self.limits.low + TURN_ROOM, self.limits.high - TURN_ROOM
         if high - low < np.pi:  # too narrow a range to choose
             return angles
         nearest = angles + np.pi * np.round((current - angles) / np.pi)

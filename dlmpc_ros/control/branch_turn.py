@@ -82,13 +82,13 @@ VERIFY = 6
 class BranchTurn:
     """A change of branch under way, and what earlier ones taught.
 
+    ``turn_guard`` is the tracker's (:class:`~dlmpc_ros.control.tracking.TrackingConfig`);
     ``on_curve(u)`` gives the curve's angles (4,) [rad] at ``u`` (with any learned
-    rotation); the settings are the tracker's (:class:`~dlmpc_ros.control.tracking.
-    TrackingConfig`: ``turn_guard``)."""
+    rotation)."""
 
-    def __init__(self, config, limits: AngleLimits,
+    def __init__(self, turn_guard: float, limits: AngleLimits,
                  on_curve: Callable[[float], np.ndarray]) -> None:
-        self.config = config
+        self.turn_guard = float(turn_guard)
         self.limits = limits
         self.on_curve = on_curve
         self.direction = -1.0    # the way round that kept the pulse last
@@ -165,9 +165,8 @@ class BranchTurn:
     def step(self, objective: float) -> tuple[np.ndarray | None, TurnEvent]:
         """This period's O -> the command of the turn (None while verifying: the tracker
         holds the new branch's point) and what the period ended with."""
-        cfg = self.config
         if (self._phase is TurnPhase.VERIFY
-                and not objective >= cfg.turn_guard * self._before):  # going where it landed
+                and not objective >= self.turn_guard * self._before):  # going where it landed
             self._retrace(TurnPhase.LANDED)
             self.lost_landing = True
         elif self._phase is TurnPhase.VERIFY:
@@ -183,7 +182,7 @@ class BranchTurn:
                 return None, KEPT
             self._retrace(TurnPhase.BACK)
         elif (self._phase is TurnPhase.GO and self._issued
-              and not objective >= cfg.turn_guard * self._before):  # the pulse is going
+              and not objective >= self.turn_guard * self._before):  # the pulse is going
             self._retrace(TurnPhase.LOST)
         command = self._path.pop(0)
         self._issued.append(command)

@@ -229,7 +229,7 @@ class CurveTracker:
         self.limits = limits or AngleLimits()
         self.active = False
         self.branch = 1           # 1: on the curve; -1: on its mirror twin
-        self.turner = BranchTurn(self.config, self.limits, self.on_curve)
+        self.turner = BranchTurn(self.config.turn_guard, self.limits, self.on_curve)
         self._estimate_before_turn = 0.0
         self._locked = 0          # consecutive locked periods while not tracking
         self._recent: deque[float] = deque(maxlen=self.config.entry_patience)
