@@ -14,6 +14,7 @@ the files it loads (``kmap.pt``, ``mprnn.pt``, ``track_curve.npz``, ``response.p
 from __future__ import annotations
 
 import sys
+from dataclasses import fields
 from typing import TYPE_CHECKING
 
 from rclpy.experimental import EventsExecutor
@@ -44,10 +45,11 @@ ACQUISITION_DEFAULTS: dict[str, object] = {
     'acquire': True, 'lock_fraction': _ACQ.lock_fraction, 'acquire_patience': _ACQ.patience,
     'acquire_relock_patience': _ACQ.relock_patience, 'acquire_dwell': _ACQ.dwell_periods,
 }
-_TRK = TrackingConfig()
+#: ``track_<name>`` -> the :class:`TrackingConfig` setting ``<name>`` (every one of them).
+TRACKING_PARAMS = {f'track_{f.name}': f.name for f in fields(TrackingConfig)}
 TRACKING_DEFAULTS: dict[str, object] = {
-    'track': True, 'track_dither': _TRK.dither, 'track_step': _TRK.step,
-    'track_guard': _TRK.guard, 'track_noise_deadband': _TRK.noise_deadband,
+    'track': True, **{param: getattr(TrackingConfig(), name)
+                      for param, name in TRACKING_PARAMS.items()},
 }
 _PLN = PlannerConfig()
 PLANNER_DEFAULTS: dict[str, object] = {
@@ -78,7 +80,9 @@ DESCRIPTIONS = {
     'acquire_dwell': 'control periods the scan waits at each point',
     'track': 'once locked, move onto the tracking curve (track_curve.npz) and follow K along '
              'it by extremum seeking on the measured O',
+    'track_start': 'curve parameter where tracking starts after the inner loop (K units)',
     'track_dither': 'half-amplitude of the dither on the curve parameter (K units)',
+    'track_block': 'control periods per dither half',
     'track_step': 'first change of the curve estimate per compared dither block (K units; '
                   'it adapts between 0.005 and 0.03)',
     'track_guard': 'hand back to the inner loop when O under tracking falls below this x '
@@ -86,6 +90,21 @@ DESCRIPTIONS = {
     'track_noise_deadband': 'the curve estimate moves only when the dither\'s O difference '
                             'passes this many standard deviations of the measurement noise '
                             'read off the run; 0: off',
+    'track_entry_patience': 'locked control periods under the inner loop before tracking '
+                            'takes over',
+    'track_settle': 'control periods after entry before the guard judges O',
+    'track_guard_periods': 'consecutive control periods under track_guard that hand back '
+                           '(right after entry) or restart at track_start',
+    'track_mirror_margin': 'how far past K = 0 the estimate must go before the tracker '
+                           'turns to the mirror branch (K units)',
+    'track_turn_guard': 'during a change of branch, O under this x the O before it turns '
+                        'back',
+    'track_trial_drop': 'relative fall of O under its best on this branch that makes the '
+                        'tracker try the other branch (0: only the estimate decides)',
+    'track_entry_trial_after': 'control periods after an entry before the other branch is '
+                               'tried once',
+    'track_entry_trial_below': 'the entry trial is made only if O is under this x the '
+                               'curve\'s own O at the estimate (0: never)',
     'plan': 'while tracking, turn the curve where the steady-response predictor '
             '(response.pt) says O gains (the model-predictive step on this laser)',
     'plan_radius': 'trust radius: largest turn of the curve per plan [rad]',
@@ -105,6 +124,11 @@ RANGES: dict[str, tuple[float, float]] = {
     'acquire_dwell': (1, 1_000_000),
     'track_dither': (1e-9, 1.0), 'track_step': (MIN_STEP, MAX_STEP),
     'track_guard': (1e-6, 1.0), 'track_noise_deadband': (0.0, 10.0),
+    'track_start': (-1.0, 1.0), 'track_block': (1, 10_000),
+    'track_entry_patience': (1, 1_000_000), 'track_settle': (0, 1_000_000),
+    'track_guard_periods': (1, 1_000_000), 'track_mirror_margin': (0.0, 1.0),
+    'track_turn_guard': (1e-6, 1.0), 'track_trial_drop': (0.0, 0.999999),
+    'track_entry_trial_after': (0, 1_000_000), 'track_entry_trial_below': (0.0, 100.0),
     'plan_radius': (1e-3, 1.0), 'plan_spread_penalty': (0.0, 100.0),
     'plan_noise_gate': (0.0, 100.0),
 }
@@ -127,9 +151,8 @@ class MPCControllerNode(ControllerNodeBase):
                 lock_fraction=v['lock_fraction'], patience=v['acquire_patience'],
                 relock_patience=v['acquire_relock_patience'],
                 dwell_periods=v['acquire_dwell']) if v['acquire'] and not paper else None
-            tracking = TrackingConfig(dither=v['track_dither'], step=v['track_step'],
-                                      guard=v['track_guard'],
-                                      noise_deadband=v['track_noise_deadband']
+            tracking = TrackingConfig(**{name: v[param] for param, name
+                                         in TRACKING_PARAMS.items()}
                                       ) if v['track'] and not paper else None
             planner = PlannerConfig(
                 radius=v['plan_radius'], spread_penalty=v['plan_spread_penalty'],
