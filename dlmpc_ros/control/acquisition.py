@@ -1,26 +1,12 @@
 """Lock acquisition for the DL-MPC: what to do while the laser is not mode-locked.
 
-Off a pulse the measurement says little about K (a continuous-wave or noisy field looks
-alike for every K), so the surrogate and the map are no guide, and the angles they give
-may hold the laser off the pulse for ever. The supervisor watches the measured objective
-O = E/M against a lock threshold (a fraction of the mean O of the map's own training
-targets: no K; and, once the laser has shown what it can do, ``RELOCK_FRACTION`` of the
-best O it measured recently, a maximum that decays by ``LEVEL_DECAY`` per period: a laser
-that is not the nominal cavity has its own scale of O, and a state far under its own
-best has lost its pulse for another) and, after ``patience`` unlocked periods
-(``relock_patience`` once it has been locked in the run), scans a list of candidate
-angle sets from a :class:`ScanSource`, dwelling ``dwell_periods`` at each once the servos
-are there, until O reaches the threshold. Then control
-goes back to the DL-MPC's modes, told which point locked
-(:attr:`LockSupervisor.locked_at`). The scan's points are reached inside the servo range
-less ``TURN_ROOM``, so the tracker's quarter turns between branches fit either way round.
-
-Two sources: the tracking curve and its mirror twin at ``CURVE_POINTS`` (the curve
-tracker's :class:`~dlmpc_ros.control.tracking.CurveScan`: points that start a pulse from
-noise at every K on the simulator, and the tracker enters right where the scan locked),
-and, without a curve, the map's angles for a fixed list of surrogate values
-(:class:`MapScan`: equal-probability quantiles of the VAE prior, nearest to the last
-surrogate seen while locked first).
+Off a pulse the measurement says little about K, so the surrogate and map are no guide. The
+laser is locked while O = E/M is at the lock threshold and at ``RELOCK_FRACTION`` of its own
+recent best (decaying by ``LEVEL_DECAY`` per period). After ``patience`` unlocked periods
+(``relock_patience`` once locked) the supervisor scans the points of a :class:`ScanSource`
+(the tracking curve and its twin, :class:`~dlmpc_ros.control.tracking.CurveScan`; without a
+curve, :class:`MapScan`) until O locks, then hands back to the modes, told where
+(:attr:`LockSupervisor.locked_at`).
 """
 
 from __future__ import annotations
@@ -41,49 +27,31 @@ from dlmpc_ros.core.angles import wrap_angles
 SCAN_POINTS = 9
 #: Largest angle gap [rad] at which the servos count as arrived at a scan point.
 ARRIVE_TOLERANCE = 1e-3
-#: Periods after which a scan point counts as reached even if the servos are not there
-#: (a point outside the angle limits).
+#: Periods after which a scan point counts as reached anyway (a point outside the limits).
 TRAVEL_PERIODS = 20
 #: Also unlocked: O under this fraction of the laser's own recent best.
 RELOCK_FRACTION = 0.6
-#: Per-period decay of that recent best (to 0.6 of it in 1,000 periods).
+#: Per-period decay of that recent best.
 LEVEL_DECAY = 0.9995
-#: The recent best is of the median O of this many latest periods (a pulse forming from
-#: noise overshoots for a period or two; that spike is not the laser's level).
+#: The recent best is of the median O of this many latest periods (skips a forming pulse's spike).
 LEVEL_WINDOW = 3
-#: Room [rad] the scan leaves every servo from the ends of its range: it takes each point
-#: at its pi-equivalent nearest the servo inside ``[low + TURN_ROOM, high - TURN_ROOM]`` of
-#: the angle limits, so that the quarter turn (pi/2) of the tracker's change of branch
-#: fits either way round where the laser locks (servos that wound toward an end blocked
-#: the turn that keeps the pulse).
+#: Room [rad] the scan leaves each servo from its range's ends (for the tracker's turns).
 TURN_ROOM = 2.0
-#: Parameters u on the tracking curve (K units) the curve scan visits, each with its
-#: mirror twin, in this order (from the simulator: c(-0.25) starts a pulse from noise at
-#: every K it was tried at).
+#: Curve parameters u (K units) the curve scan visits, each with its mirror twin, in order.
 CURVE_POINTS = (-0.25, -0.3, -0.2, -0.15, -0.1, -0.05, 0.0)
 
 
 @dataclass(frozen=True)
 class AcquisitionConfig:
-    """Settings of the lock supervisor (times in control periods). The scan lets go at the
-    first period at the lock level (waiting for a second locked 4 more of 100 cold starts
-    on one development plant and lost 0.005 on the family's random walks,
-    ``bench/results/acquisition_confirm.md``)."""
+    """Settings of the lock supervisor (times in control periods); the scan lets go at the
+    first locked period (``bench/results/acquisition_confirm.md``)."""
 
     lock_fraction: float = 0.5
     """Locked when O >= lock_fraction x the mean O of the map's training targets."""
     patience: int = 3
-    """Unlocked periods before the scan starts (the loops may still be acquiring). 3
-    rather than 10, with ``dwell_periods`` 3 rather than 5 (and, then, 3 after a lock
-    too): on the development plants' lock benchmark 892 of 900 cold starts locked
-    against 890, the worst plant's median time to lock 17.6 periods against 23.9; their
-    drift runs 0.9575 against 0.9547 (``bench/results/acquisition_pace.md``)."""
+    """Unlocked periods before the scan starts (``bench/results/acquisition_pace.md``)."""
     relock_patience: int = 10
-    """The same once the laser has been locked in this run: a pulse that fades under the
-    lock level while the tracker settles on the weaker branch may still be turned onto
-    the better one by its entry trial. Development plants' lock benchmark: 896 of 900
-    against 892 with 3 (family-6 100 against 96), worst median 19.1 periods
-    (``bench/results/acquisition_pace.md``)."""
+    """The same once locked in this run (``bench/results/acquisition_pace.md``)."""
     dwell_periods: int = 3
     """Periods the scan waits at each point once the servos are there."""
 
@@ -117,15 +85,13 @@ class ScanSource(Protocol):
 
 
 def scan_surrogates(points: int) -> np.ndarray:
-    """(points,) surrogate values to scan: equal-probability quantiles of N(0, 1), the
-    VAE prior of the latent coordinate the surrogate is."""
+    """(points,) surrogates to scan: equal-probability quantiles of N(0, 1), the VAE prior."""
     normal = NormalDist()
     return np.array([normal.inv_cdf((i + 0.5) / points) for i in range(points)])
 
 
 class MapScan:
-    """The map's angles at ``points`` equal-probability quantiles of the VAE prior, the
-    one nearest the last surrogate seen while locked first."""
+    """The map's angles at ``points`` VAE-prior quantiles, nearest the last locked first."""
 
     def __init__(self, map_angles: Callable[[float], np.ndarray], points: int) -> None:
         self.map_angles = map_angles
@@ -143,14 +109,11 @@ class MapScan:
 
 
 class LockSupervisor:
-    """Per control period: None while the DL-MPC loops are in charge, else the angles
-    (4,) [rad] of the scan.
+    """Per period: None while the DL-MPC loops are in charge, else the scan's angles (4,) [rad].
 
-    ``threshold`` is the objective O (E/M units) at and above which the laser counts as
-    locked; ``source`` gives the points of each pass of the scan. In the period O passes
-    the threshold under the scan, :attr:`locked_at` is the point the scan was at or on
-    its way to (else None). With ``limits`` (the servos' :class:`AngleLimits`) the scan
-    keeps ``TURN_ROOM`` from the ends of their range."""
+    ``threshold``: O (E/M units) at and above which the laser is locked; ``limits``: the
+    servos' :class:`AngleLimits` (None: no ``TURN_ROOM`` kept). :attr:`locked_at`: the
+    scan's point in the period O locked (else None)."""
 
     def __init__(self, threshold: float, source: ScanSource,
                  config: AcquisitionConfig | None = None,
@@ -169,8 +132,7 @@ class LockSupervisor:
         self._order: list[ScanPoint] = []
         self._target: ScanPoint | None = None
         self._dwell = self._travel = 0
-        #: Whether the latest command only moves the servos on toward the scan's point
-        #: (the next decision needs no measurement there).
+        #: Whether the latest command only moves the servos on (no measurement needed).
         self.travelling = False
 
     def locked(self, objective: float) -> bool:
@@ -183,8 +145,7 @@ class LockSupervisor:
         self.travelling = False
         if np.isfinite(objective):
             self._latest.append(float(objective))
-            self.level = max(float(np.median(self._latest)),
-                             self.level * LEVEL_DECAY)
+            self.level = max(float(np.median(self._latest)), self.level * LEVEL_DECAY)
         locked = self.locked(objective)
         if locked:
             self.was_locked = True
@@ -200,10 +161,8 @@ class LockSupervisor:
         return self._scan(np.asarray(current, float))
 
     def _toward(self, current: np.ndarray) -> np.ndarray:
-        """The command toward the scan's point (4,) [rad]: the point itself where its
-        pi-equivalent nearest ``current`` lies inside the limits less ``TURN_ROOM``, else
-        a step under pi/2 toward the nearest equivalent inside them (the servo limits take
-        the equivalent nearest the servo, so a farther one is reached in such steps)."""
+        """The command (4,) [rad] toward the scan's point: the point, or where its nearest
+        pi-equivalent is outside the limits less ``TURN_ROOM``, a step <= pi/4 into them."""
         angles = self._target.angles
         if self.limits is None:
             return angles
@@ -219,8 +178,7 @@ class LockSupervisor:
     def _arrived(self, current: np.ndarray) -> bool:
         """Whether the servos are at the scan's point (or have travelled long enough)."""
         gap = wrap_angles(current - self._target.angles)  # pi-periodic
-        return (float(np.max(np.abs(gap))) <= ARRIVE_TOLERANCE
-                or self._travel >= TRAVEL_PERIODS)
+        return float(np.max(np.abs(gap))) <= ARRIVE_TOLERANCE or self._travel >= TRAVEL_PERIODS
 
     def _scan(self, current: np.ndarray) -> np.ndarray:
         if self._target is not None:

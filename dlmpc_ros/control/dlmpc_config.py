@@ -25,7 +25,7 @@ class DLMPCConfig:
     learning_rate: float = 0.05
     """Adam step of the plan optimization [rad]."""
     error_threshold: float = 1.0
-    """One-step prediction error (normalized state units, averaged over the last
+    """One-step prediction error (normalized state units, mean of the last
     ``modes.ERROR_MEMORY`` periods) above which the inner loop takes over."""
     accurate_error: float = 0.3
     """Errors below this count as accurate (iterations grow)."""
@@ -34,14 +34,12 @@ class DLMPCConfig:
     tracking: TrackingConfig | None = field(default_factory=TrackingConfig)
     """Curve tracking once locked (None: off; also off without a tracking curve)."""
     planner: PlannerConfig | None = field(default_factory=PlannerConfig)
-    """Planning turns of the tracking curve with the steady-response predictor (None:
-    off; also off without tracking or without the predictor)."""
+    """Planned curve turns (None: off; also off without tracking or the predictor)."""
 
     @classmethod
     def paper(cls, **settings) -> DLMPCConfig:
-        """The paper's DL-MPC (section 3D) and nothing else: the VAE surrogate through the
-        K-to-angles map (inner loop) and the MP-RNN's horizon-N plans (outer loop); no
-        lock acquisition scan, curve tracking or planned turns."""
+        """The paper's DL-MPC (section 3D) only: inner and outer loop; no acquisition scan,
+        curve tracking or planned turns."""
         return cls(acquisition=None, tracking=None, planner=None, **settings)
 
     def __post_init__(self) -> None:

@@ -11,13 +11,7 @@ from dlmpc_ros.learning.encoder import Encoder
 
 
 class SurrogateEstimator:
-    """Feeds a sliding window of measurements to the VAE's encoder.
-
-    Parameters
-    ----------
-    encoder
-        The trained estimator's encoder (its window length w).
-    """
+    """Feeds a sliding window of measurements to the VAE's ``encoder`` (window length w)."""
 
     def __init__(self, encoder: Encoder) -> None:
         self.encoder = encoder
@@ -29,7 +23,7 @@ class SurrogateEstimator:
 
     def update(self, measurement: np.ndarray) -> tuple[float, np.ndarray]:
         """Add a measurement (6,) ``(E, M, alpha[4])``; return ``(surrogate, latent mean)``
-        (until w measurements are in, the window is padded with the oldest)."""
+        (a window short of w is padded with the oldest)."""
         self.window.append(np.asarray(measurement, np.float32))
         rows = list(self.window)
         rows = [rows[0]] * (self.window.maxlen - len(rows)) + rows

@@ -12,15 +12,12 @@ import numpy as np
 class AngleLimits:
     """Range of every angle [rad] and the largest change per control period [rad].
 
-    Every element is pi-periodic, so a wanted angle is replaced by its equivalent inside
-    ``[low, high]`` closest to the current angle (``[low, high]`` should span at least pi
-    for every setting to be reachable), and the servo never jumps: it moves toward that
-    goal by at most ``max_step`` per period.
+    Angles are pi-periodic: a wanted angle becomes its equivalent in ``[low, high]`` (which
+    should span >= pi) nearest the current one, reached by at most ``max_step`` per period.
     """
 
     low: float = -2 * math.pi
-    """Lowest angle a servo may be sent to [rad] (rotation mounts turn continuously; two
-    turns of range keep the DL-MPC's quarter turns between branches clear of the ends)."""
+    """Lowest angle a servo may be sent to [rad] (two turns: room for branch turns)."""
     high: float = 2 * math.pi
     """Highest angle a servo may be sent to [rad]."""
     max_step: float = 0.25
@@ -34,11 +31,8 @@ class AngleLimits:
             raise ValueError(f'max_step must be > 0 rad, got {self.max_step}')
 
     def apply(self, current: np.ndarray, wanted: np.ndarray) -> np.ndarray:
-        """The angles (4,) to command, from the current (4,) and the wanted (4,) ones.
-
-        The goal is the pi-equivalent of ``wanted`` inside ``[low, high]`` nearest to the
-        current angle; the servo moves toward it by at most ``max_step``.
-        """
+        """The angles (4,) [rad] to command, from the current (4,) and the wanted (4,) ones:
+        toward the pi-equivalent of ``wanted`` in range nearest ``current``, by <= ``max_step``."""
         current = np.clip(np.asarray(current, float), self.low, self.high)
         wanted = np.asarray(wanted, float)
         goal = wanted + math.pi * np.round((current - wanted) / math.pi)  # nearest of all
@@ -49,8 +43,7 @@ class AngleLimits:
 
 
 def into_range(goal: np.ndarray, low: float, high: float) -> np.ndarray:
-    """Angles (any shape) [rad] moved by whole multiples of pi to the equivalent just
-    inside ``[low, high]`` where they lie beyond a limit (the nearest inside the range;
-    still outside where the range is narrower than pi), unchanged elsewhere."""
+    """Angles (any shape) [rad] beyond a limit moved by whole multiples of pi to the nearest
+    equivalent in ``[low, high]`` (still outside if the range is under pi), others unchanged."""
     goal = np.where(goal > high, goal - math.pi * np.ceil((goal - high) / math.pi), goal)
     return np.where(goal < low, goal + math.pi * np.ceil((low - goal) / math.pi), goal)

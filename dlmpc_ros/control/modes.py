@@ -1,22 +1,16 @@
 """The DL-MPC's modes: one object per way of choosing the next angles, with one verb.
 
-The supervisor (:class:`~dlmpc_ros.control.dlmpc.DLMPCController`) asks its modes in
-priority order, each period, ``decide(period)``; the first that returns a
-:class:`Decision` acts, and the modes after it are told to ``stand_down`` (they were not
-asked, and must drop what they had under way). A mode that returns None passes. The
-modes, highest priority first:
+Each period the supervisor (:class:`~dlmpc_ros.control.dlmpc.DLMPCController`) asks its
+modes ``decide(period)`` in priority order; the first :class:`Decision` acts and the modes
+after it ``stand_down`` (drop what they had under way). None passes. Highest first:
 
-- :class:`AcquireMode` (``acquire``): the lock acquisition scan while the laser is off
-  its pulse (:mod:`~dlmpc_ros.control.acquisition`);
-- :class:`TrackMode` (``track``): the curve tracker once locked
-  (:mod:`~dlmpc_ros.control.tracking`);
-- :class:`OuterLoop` (``outer``): MP-RNN planning while the predictor has been accurate
-  (:mod:`~dlmpc_ros.control.planner`);
+- :class:`AcquireMode` (``acquire``): lock scan (:mod:`~dlmpc_ros.control.acquisition`);
+- :class:`TrackMode` (``track``): curve tracker (:mod:`~dlmpc_ros.control.tracking`);
+- :class:`OuterLoop` (``outer``): MP-RNN plans (:mod:`~dlmpc_ros.control.planner`);
 - :class:`InnerLoop` (``inner``): the estimator's surrogate through the K-to-angles map;
-- :class:`HoldMode` (``hold``): keep the angles (no surrogate: a silent estimator).
+- :class:`HoldMode` (``hold``): keep the angles (no surrogate).
 
-:class:`PredictionMonitor` keeps the MP-RNN's history and scores its one-step forecasts in
-every period; the outer loop reads it.
+:class:`PredictionMonitor` keeps the MP-RNN's history and scores its one-step forecasts.
 """
 
 from __future__ import annotations
@@ -84,12 +78,8 @@ class Mode(Protocol):
 
 
 class PredictionMonitor:
-    """The MP-RNN's view of the run: its feature history and its one-step accuracy.
-
-    Each period :meth:`observe` adds the period's features and scores the forecast
-    made for it (:meth:`expect`); the number of plan iterations grows by one after an
-    accurate forecast and shrinks after a poor one.
-    """
+    """The MP-RNN's feature history and one-step accuracy: plan iterations grow by one after
+    an accurate forecast (:meth:`expect`, scored by :meth:`observe`), shrink after a poor one."""
 
     def __init__(self, model: MPRNN, config: DLMPCConfig) -> None:
         self.model = model
@@ -100,8 +90,7 @@ class PredictionMonitor:
         self._expected: torch.Tensor | None = None   # (2,) v forecast for this period
 
     def observe(self, x: torch.Tensor) -> float:
-        """Add the period's features (10,); returns the error of the forecast made for
-        them (RMS over the normalized states; NaN when there was none)."""
+        """Add the period's features (10,); return their forecast's RMS error (NaN: none)."""
         self.history.append(x)
         if self._expected is None:
             return float('nan')
@@ -134,8 +123,7 @@ class PredictionMonitor:
 
 
 class AcquireMode:
-    """Scan for a pulse while the measured O says the laser is off it; where the scan
-    locks on a point of the tracking curve, the tracker (if any) enters there."""
+    """Scan for a pulse while unlocked; the tracker (if any) enters where the scan locks."""
 
     name = 'acquire'
 
@@ -176,12 +164,8 @@ class TrackMode:
 
 
 class OuterLoop:
-    """MP-RNN planning (receding horizon), while its recent forecasts were accurate.
-
-    Passes (and drops its plan) while the history is too short or the recent forecast
-    error is above ``config.error_threshold``. The predictor is scored only while it
-    plans, so once its error has passed the threshold the outer loop stays off.
-    """
+    """MP-RNN planning (receding horizon); passes (dropping its plan) while the history is
+    short or the recent error is over ``config.error_threshold`` (then it stays off)."""
 
     name = 'outer'
 

@@ -45,12 +45,9 @@ class PlanResult:
 
 
 def solve_plan(model: MPRNN, problem: PlanProblem, limits: AngleLimits) -> PlanResult:
-    """Improve ``problem.seed`` by gradient ascent on ``model``'s summed predicted O.
-
-    The model's weights are not changed (it should have ``requires_grad`` off). After the
-    ascent the first step is cut to what the servos reach (``limits``) and the plan is
-    predicted once more with exactly that.
-    """
+    """Improve ``problem.seed`` by gradient ascent on ``model``'s summed predicted O (weights
+    unchanged: it should have ``requires_grad`` off), then cut the first step to what the
+    servos reach (``limits``) and predict the plan once more with it."""
     plan = problem.seed.clone().requires_grad_(True)
     optimizer = torch.optim.Adam([plan], lr=problem.learning_rate)
     for _ in range(problem.iterations):

@@ -1,19 +1,10 @@
 """What the curve tracker learns of the laser in front of it: a rotation of the curve.
 
-The tracking curve was made on the simulator's nominal cavity. On another laser (other
-pump, loss, dispersion, gain bandwidth) the best angles move, and mostly they move
-together: turning all four elements by one angle theta relative to the fiber's
-birefringence axes recovers most of the gap (measured on the family plants the
-controller's settings were chosen on: e.g. from 0.91 to 0.98 of that plant's envelope at
-K = -0.25 on family plant 1). At K = 0, where the fiber is isotropic, such a turn changes
-nothing, so theta matters more the larger |K| is and differs along the curve.
-
-:class:`CurveRotation` is that correction as a function theta(u) of the curve parameter
-``u``: piecewise linear on ``knots`` points, zero (the nominal curve) to begin with, and
-turned at the ``u`` the tracker is at by the DL-MPC's rotation planner
-(:mod:`dlmpc_ros.control.rotation_planner`). The mirror twin at estimate ``s`` is the
-curve at ``u = -s`` turned by a quarter turn, so what is learned on one branch serves the
-other.
+On a laser other than the simulator's nominal cavity the best angles move, mostly together:
+turning all four elements by one angle theta recovers most of the gap. :class:`CurveRotation`
+is theta(u) along the curve (it does nothing at K = 0, more the larger |K|), turned by the
+rotation planner (:mod:`dlmpc_ros.control.rotation_planner`). The twin at estimate ``s`` is
+the curve at ``u = -s`` turned a quarter turn, so one rotation serves both branches.
 """
 
 from __future__ import annotations
@@ -24,8 +15,8 @@ import numpy as np
 class CurveRotation:
     """theta(u) [rad]: a learned turn of all four angles along the curve.
 
-    ``low`` < ``high`` bound the curve parameter, ``knots`` >= 2 points carry the
-    values, ``limit`` [rad] bounds |theta|.
+    ``low`` < ``high`` bound the curve parameter (K units), ``knots`` >= 2 points carry
+    the values, ``limit`` [rad] bounds |theta|, ``spread`` (0: off) is :meth:`move`'s prior.
     """
 
     def __init__(self, low: float, high: float, knots: int, limit: float,
@@ -42,8 +33,7 @@ class CurveRotation:
         self.updates = 0
 
     def start_from(self, knots: np.ndarray, values: np.ndarray) -> None:
-        """Begin from a calibrated rotation (``values`` [rad] at ``knots``, interpolated
-        onto this one's knots, within +-limit)."""
+        """Begin from a calibrated rotation, ``values`` [rad] at ``knots`` (within +-limit)."""
         self.values = np.clip(np.interp(self.knots, knots, values), -self.limit, self.limit)
 
     def __call__(self, u: float) -> float:
@@ -51,12 +41,9 @@ class CurveRotation:
         return float(np.interp(u, self.knots, self.values))
 
     def move(self, u: float, delta: float) -> None:
-        """Change theta(u) by ``delta`` [rad], through the two knots around ``u`` (in
-        proportion to their weights, so that theta(u) itself moves by ``delta``), within
-        +-limit. With ``spread`` > 0 every knot no move was made next to yet (no evidence
-        of its own) first moves by ``delta`` x exp(-(knot - u)^2 / (2 spread^2)), a prior
-        for where K has not been, and the two knots around ``u`` then by what theta(u)
-        still lacks of ``delta``."""
+        """Change theta(u) by ``delta`` [rad] through the two knots around ``u``, within
+        +-limit. With ``spread`` > 0 every unexplored knot first moves by ``delta`` x
+        exp(-(knot - u)^2 / (2 spread^2)), and the two knots by what theta(u) still lacks."""
         u = float(np.clip(u, self.knots[0], self.knots[-1]))
         right = int(np.clip(np.searchsorted(self.knots, u), 1, self.knots.size - 1))
         w_right = (u - self.knots[right - 1]) / (self.knots[right] - self.knots[right - 1])
@@ -75,15 +62,11 @@ class CurveRotation:
 
 def locate(angles: np.ndarray, grid: np.ndarray, curve: np.ndarray
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Where angle sets lie on the rotated curve and its twin.
-
-    ``angles`` (n, 4) [rad], the curve ``grid`` (m,) and ``curve`` (m, 4). Every set is
-    matched to the grid point ``u`` and rotation ``theta`` [rad] that reproduce it best
-    (each element modulo pi, the half-wave plate modulo pi/2); a rotation beyond
-    +-pi/4 is the twin: ``branch`` -1 with ``theta`` less a quarter turn. Returns
-    ``(branch (n,), u (n,), theta (n,), misfit (n,))``, the misfit the RMS angle
-    difference left [rad].
-    """
+    """Where angle sets ``angles`` (n, 4) [rad] lie on the rotated curve (``grid`` (m,),
+    ``curve`` (m, 4)) and its twin: the grid point ``u`` and rotation ``theta`` [rad] that
+    fit each best (modulo pi, the half-wave plate modulo pi/2; beyond +-pi/4: the twin,
+    ``branch`` -1, ``theta`` less a quarter turn). Returns ``(branch, u, theta, misfit)``,
+    each (n,), the misfit the RMS angle difference left [rad]."""
     angles = np.asarray(angles, float)[:, None, :]                 # (n, 1, 4)
     residual = angles - np.asarray(curve, float)[None]             # (n, m, 4)
     pi_periodic = residual[..., [0, 1, 3]]
@@ -98,5 +81,4 @@ def locate(angles: np.ndarray, grid: np.ndarray, curve: np.ndarray
     theta = theta[rows, best]
     twin = np.abs(theta) > np.pi / 4
     theta = np.where(twin, theta - np.sign(theta) * np.pi / 2, theta)
-    return (np.where(twin, -1, 1), np.asarray(grid, float)[best], theta,
-            misfit[rows, best])
+    return (np.where(twin, -1, 1), np.asarray(grid, float)[best], theta, misfit[rows, best])

@@ -1,21 +1,11 @@
 """The DL-MPC's model-predictive step on the laser in front of it: plan the curve's rotation.
 
-While the curve tracker holds the laser on its curve, every ``plan_every`` dither blocks
-(:class:`~dlmpc_ros.control.tracking.TrackingConfig`) the planner asks the
-steady-response predictor (:mod:`dlmpc_ros.learning.response`) what further turns
-``delta`` of the curve at the current point would do to the settled O, given the rotation
-there and the E and M measured (averaged over the last ``MEASUREMENTS`` periods), and
-picks the turn within the trust radius that maximizes the predicted gain less
-``spread_penalty`` times the ensemble's spread (a plan the members disagree on leaves the
-data they were trained on). It moves only when that beats ``MIN_GAIN`` and, under
-measurement noise, the noise of the move's own measured gain; else it holds.
-After each move it compares the O measured once the laser settled with the O before,
-against the prediction, and learns a correction of the predictor for this laser online
-(:class:`OnlineCorrection`: a least-squares line in ``delta``, fit to the run's own
-moves, that the next plans add, starting from what a calibration from a bag found, if
-any): the predictor is the prior, the laser corrects it. A
-move after which O fell under ``UNDO_BELOW`` of what it was is taken back at once.
-Planning costs one small forward pass of the ensemble.
+Every ``plan_every`` dither blocks (:class:`~dlmpc_ros.control.tracking.TrackingConfig`)
+the planner asks the steady-response predictor (:mod:`dlmpc_ros.learning.response`) what
+turns ``delta`` of the curve at the current point do to the settled O, and takes the best
+(predicted gain less ``spread_penalty`` x the ensemble's spread) if it beats ``MIN_GAIN``
+and the measurement noise. An :class:`OnlineCorrection` learns the predictor's errors on
+this laser; a move after which O fell under ``UNDO_BELOW`` of its O before is taken back.
 """
 
 from __future__ import annotations
@@ -34,16 +24,14 @@ if TYPE_CHECKING:  # torch-based: the caller loads it
 
 #: Turns tried per plan, evenly over [-radius, radius].
 CANDIDATES = 21
-#: Smallest predicted gain of log O that is worth a move (0.01 did no better on the
-#: development plants, ``bench/results/planner_gate.md``).
+#: Smallest predicted gain of log O worth a move (``bench/results/planner_gate.md``).
 MIN_GAIN = 0.002
 #: Recent periods whose log E and log M are averaged as the predictor's input.
 MEASUREMENTS = 3
 #: Recent moves the online correction is fit to.
 MEMORY = 30
-#: Weight of a calibrated correction (``turn_correction.npz`` of ``dlmpc-train adapt``), in
-#: moves of the run: the online fit is pulled toward it as strongly as toward this many
-#: moves (without one it is pulled toward 0 with weight 1).
+#: Weight, in moves of the run, of a calibrated correction (``turn_correction.npz`` of
+#: ``dlmpc-train adapt``) in the online fit (without one: toward 0 with weight 1).
 PRIOR_MOVES = 10.0
 #: A move after which O fell under this fraction of its O before is taken back.
 UNDO_BELOW = 0.85
@@ -56,23 +44,15 @@ class PlannerConfig:
     radius: float = 0.1
     """Trust radius: the largest turn of one plan [rad]."""
     spread_penalty: float = 1.0
-    """Weight of the ensemble's spread against its mean predicted gain (2 stops the turns
-    of the nominal cavity's curve but loses 0.008 on the held-out plants;
-    ``bench/results/planner_gate.md``)."""
+    """Weight of the ensemble spread against its mean gain (``bench/results/planner_gate.md``)."""
     noise_gate: float = 1.0
-    """Under measurement noise a move must also be predicted to gain more than this many
-    standard deviations of the noise of its own measured gain (the change of the mean log
-    O of ``MEASUREMENTS`` periods, ``noise * sqrt(2 / MEASUREMENTS)``, ``noise`` the one
-    period's noise the tracker reads off the run; 0: off): the undo and the online
-    correction could not tell such a move's effect from the noise. Chosen on the
-    development plants: 1 % noise on E and M cost the nominal sinusoid 0.007 with it,
-    0.025 without, the family plants as much either way (``bench/results/noise_gate.md``)."""
+    """A move must also be predicted to gain more than this many standard deviations of
+    its own measured gain's noise, ``noise * sqrt(2 / MEASUREMENTS)`` (``noise``: one
+    period's log O noise; 0: off; ``bench/results/noise_gate.md``)."""
     online: bool = True
     """Correct the predictor online from the run's own moves."""
     explore: bool = False
-    """Calibration runs: every plan a random turn within the trust radius (seeded 0)
-    instead of the predicted best (the undo still guards it), to record what turns do on
-    this laser."""
+    """Calibration runs: every plan a random turn within the radius (seeded 0; undo guards)."""
 
     def __post_init__(self) -> None:
         checks.positive(self, 'radius')
@@ -81,21 +61,15 @@ class PlannerConfig:
 
 
 class OnlineCorrection:
-    """What the predictor got wrong on this laser: ``a + b * delta + c * |delta|`` fit
-    (ridge least squares, every term pulled alike: a heavier pull on ``b`` and ``c`` did
-    not pay, ``bench/results/planner_turn_ridge.md``) to the errors of the last ``memory``
-    moves, added to later
-    plans (the planner uses it less its value at 0, so ``a`` only absorbs what the drift
-    of K did between the two measurements of a move). ``b`` learns a predictor that is
-    wrong about which way to turn; ``c`` one that is wrong about whether turning pays at
-    all, as on a laser whose best rotation is the curve's own.
+    """What the predictor got wrong on this laser: ``a + b * delta + c * |delta|`` (ridge
+    least squares, ``bench/results/planner_turn_ridge.md``) fit to the errors of the last
+    ``memory`` moves, added to later plans less its value at 0 (``a`` absorbs K's drift).
+    ``b``: which way to turn; ``c``: whether turning pays at all.
 
-    ``prior`` (3,), a calibration's coefficients for this laser (``a, b, c``), is where the
-    fit starts and what the ridge pulls it toward, with weight ``ridge`` (default: 0 and
-    weight 1)."""
+    ``prior`` (3,): a calibration's ``a, b, c``, where the fit starts and what the ridge
+    pulls it toward with weight ``ridge`` (None: 0)."""
 
-    def __init__(self, memory: int, ridge: float = 1.0, prior: np.ndarray | None = None
-                 ) -> None:
+    def __init__(self, memory: int, ridge: float = 1.0, prior: np.ndarray | None = None) -> None:
         self.moves: deque[tuple[float, float]] = deque(maxlen=memory)  # (delta, error)
         self.ridge = float(ridge)
         self.prior = np.zeros(3) if prior is None else np.asarray(prior, float)
@@ -150,9 +124,8 @@ class RotationPlanner:
             self.recent.append((float(np.log(energy)), float(np.log(kurtosis))))
 
     def retract(self) -> float:
-        """The last move [rad] if it has not been judged yet (0: none); it is forgotten and
-        counted as undone (the caller takes it back: the laser lost its pulse or fell
-        under its guard before the move could be judged)."""
+        """The last move [rad] if not judged yet (0: none), forgotten and counted as undone
+        (the caller takes it back: the pulse was lost or under its guard)."""
         if self._pending is None:
             return 0.0
         delta, self._pending = self._pending[0], None
@@ -161,9 +134,8 @@ class RotationPlanner:
         return delta
 
     def plan(self, u: float, theta: float, noise: float = 0.0) -> float:
-        """The turn [rad] to add to the rotation at curve point ``u`` (0: hold), where
-        ``theta`` [rad] is the rotation there and ``noise`` the standard deviation of one
-        period's measured log O (0: none known)."""
+        """The turn [rad] to add at curve point ``u`` (0: hold); ``theta`` [rad]: the rotation
+        there; ``noise``: the standard deviation of one period's log O (0: unknown)."""
         if not self.recent:
             return 0.0
         log_e, log_m = np.mean(np.array(self.recent), axis=0)

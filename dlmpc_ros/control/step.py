@@ -7,23 +7,16 @@ from typing import Protocol
 
 import numpy as np
 
-#: Modes a controller reports: the DL-MPC loops, holding (no usable input), baselines,
-#: the DL-MPC's lock acquisition scan, its curve tracking, the genetic algorithm, the
-#: DL-MPC's planned turns of its curve (tracking periods in which the planner moved it),
-#: ``custom`` for a plug-in controller's own (docs/controllers.md), Bayesian
-#: optimization, and the deep-RL policy (``control/drl.py``). The index is published: a
-#: new mode goes at the end.
+#: Modes a controller reports (``plan``: tracking periods with a planned turn; ``custom``: a
+#: plug-in's own, docs/controllers.md). The index is published: a new mode goes at the end.
 MODES = ('inner', 'outer', 'hold', 'passive', 'fixed_best', 'esc', 'oracle', 'acquire',
          'track', 'ga', 'plan', 'custom', 'bo', 'drl')
 
 
 @dataclass(frozen=True)
 class ControlStep:
-    """One control period's decision.
-
-    ``angles`` (4,) [rad] are applied from the next round trip on; the other fields are
-    diagnostics published on the controller's status topic.
-    """
+    """One control period's decision: ``angles`` (4,) [rad], applied from the next round
+    trip on, and diagnostics published on the controller's status topic."""
 
     angles: np.ndarray
     mode: str
@@ -33,23 +26,19 @@ class ControlStep:
     iterations: int = 0
     latency_ms: float = 0.0
     measure: bool = True
-    """Whether the next decision needs a measurement at ``angles`` (False: the controller
-    only moves the servos on, and decides again as soon as they report the command
-    reached, without waiting for the round trips a measurement averages)."""
+    """Whether the next decision needs a measurement at ``angles`` (False: it only moves
+    the servos on, and decides again as soon as they report the command reached)."""
 
     @property
     def mode_index(self) -> int:
         return MODES.index(self.mode)
 
 
-#: Bounds of a laser's measurement: E = sqrt(energy) and the spectral kurtosis M (a
-#: kurtosis is at least 1; at most about the grid's point count). A state outside them
-#: (E < 0, M < 1, 1e300: a glitch or a corrupt driver) is no laser's; a controller that
-#: learns from its inputs holds the angles on it and keeps it out of its history.
+#: Bounds of a laser's E = sqrt(energy) and spectral kurtosis M; a state outside them is a
+#: glitch, on which a learning controller holds and keeps it out of its history.
 E_RANGE = (0.0, 1e4)
 M_RANGE = (1.0, 1e5)
-#: Largest |angle| a servo may report [rad] (the angles are pi-periodic; no mount turns
-#: a thousand radians).
+#: Largest |angle| a servo may report [rad].
 ANGLE_BOUND = 1e3
 
 
@@ -70,13 +59,8 @@ def implausible(measurement: np.ndarray) -> str | None:
 class Controller(Protocol):
     """Measurement ``(E, M, alpha1, alpha2, alpha3, alpha_p)`` in, next angles out.
 
-    ``surrogate`` is the estimator's K surrogate for the same measurement (None when the
-    estimator is silent); controllers that do not use it ignore it. No controller is
-    given the true birefringence through this verb (the oracle baseline, evaluation only,
-    has a separate ``observe_truth``). A controller with a true ``uses_estimator``
-    attribute (the DL-MPC) is given the VAE estimator's surrogate by every harness;
-    the others get None.
-    """
+    ``surrogate``: the estimator's K surrogate for it (None: silent estimator, or no true
+    ``uses_estimator``); the true K comes only by the oracle's ``observe_truth``."""
 
     name: str
 

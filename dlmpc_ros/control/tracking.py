@@ -1,38 +1,20 @@
 """Curve tracking for the DL-MPC: hold the laser on the best branch and follow K along it.
 
-The estimator's surrogate reads the angles, not the laser (``dlmpc-train
-check-estimator``), so the surrogate -> map loop cannot follow K by itself. Along the
-best branch-continuous angle curve ``c(s)`` (the refined tracking path; ``s`` is a
-birefringence estimate on the curve's own axis, in K's units) the steady objective peaks
-near ``s = K`` and is flat close to it. The tracker therefore estimates ``s`` from the
-measured O alone: it dithers ``s`` by ``+-dither`` in blocks of ``block`` control
-periods, compares the O measured at the end of each block with the two blocks around it
-(which cancels a linear drift of O), and steps its estimate toward the higher O. It never
-reads the true K.
+Along the learned angle curve ``c(s)`` (``s`` a birefringence estimate in K's units) the
+steady O peaks near ``s = K``. The tracker estimates ``s`` from the measured O alone: it
+dithers ``s`` by ``+-dither`` in blocks of ``block`` periods, compares each block's O with
+the blocks around it (which cancels a linear drift of O) and steps toward the higher O.
 
-It takes over from the inner loop once the laser has been locked for ``entry_patience``
-periods (moving onto the curve at ``start``), and hands back when O under tracking falls
-below ``guard`` x the O measured just before it took over (then waits ``COOLDOWN``
-periods, twice as long after each failed entry, before trying again).
+It enters once the laser has been locked ``entry_patience`` periods (at ``start``) or
+where the scan locked, and hands back when O falls under ``guard`` x the O at entry
+(then waits ``COOLDOWN`` periods, doubled after each failed entry).
 
-The curve is best for K < 0 only: the cavity's mirror symmetry
-(:mod:`dlmpc_ros.core.symmetry`) gives its twin ``m(s) = c(-s) + pi/2`` (every element
-turned by a quarter turn), which is as good at K as the curve is at -K. The tracker
-changes branch (:class:`~dlmpc_ros.control.branch_turn.BranchTurn`, a turn that keeps
-the pulse and is taken back unless the other branch is better) when its estimate leaves
-its branch's side by ``mirror_margin``, or when O has fallen ``trial_drop`` under the best
-it measured since the branch was last chosen: on a laser that is not the nominal cavity
-the best point of the curve often sits at its end whatever K is, the estimate then does
-not say which side of 0 K is on, and the measured O does.
-
-The curve was made on the nominal cavity; on the laser in front of it the curve is
-turned by a learned rotation theta(u) (all four angles together, a different turn at
-each point of the curve; :mod:`dlmpc_ros.control.rotation`). Every ``PLAN_EVERY`` dither
-blocks the tracker asks the planner it was built with for ``plan(u, theta, noise)`` (the
-DL-MPC's :mod:`~dlmpc_ros.control.rotation_planner`; ``noise`` the measurement noise it
-read off the run, :meth:`CurveTracker.noise`) for a further turn at the current point,
-applies it and starts its dither afresh. What is learned at a point stays there for the
-next time K comes by.
+The curve is best for K < 0; its mirror twin ``c(-s) + pi/2`` (:mod:`dlmpc_ros.core.symmetry`)
+is as good at K as the curve at -K. The tracker turns to the other branch
+(:class:`~dlmpc_ros.control.branch_turn.BranchTurn`) when its estimate passes 0 by
+``mirror_margin`` or O falls ``trial_drop`` under its best on the branch, and keeps the
+turn only if it gains. Every ``PLAN_EVERY`` blocks its planner may turn the curve at the
+current point (the learned rotation, :mod:`dlmpc_ros.control.rotation`).
 """
 
 from __future__ import annotations
@@ -64,29 +46,19 @@ PLAN_EVERY = 4
 ROTATION_KNOTS = 13
 #: Largest learned rotation [rad].
 ROTATION_LIMIT = 1.0
-#: A turn planned at one point of the curve also turns the knots no turn was planned next
-#: to yet, by the turn x exp(-(distance / ROTATION_SPREAD)^2 / 2) (K units): what one
-#: point learned is the prior where K has not been. Into every knot, turns added up past
-#: the predictor's data (-0.87 rad) and a development run lost 0.17. Chosen on the
-#: development plants (``bench/results/rotation_spread.md``).
+#: A turn at one point also turns the knots not yet turned by turn x
+#: exp(-(distance / ROTATION_SPREAD)^2 / 2) (K units; ``bench/results/rotation_spread.md``).
 ROTATION_SPREAD = 0.1
 #: Relative O difference below which the estimate does not move.
 DEADBAND = 5e-5
 #: Periods to wait after handing back before trying again (doubled, up to 64 x, after each
 #: failed entry).
 COOLDOWN = 50
-#: The O before a turn, which its guard and its verification judge by, is the median of
-#: the 3 latest periods (not the period's own O). A pulse just formed from noise swings by
-#: a factor of two between periods, and a turn begun on a crest was given up at the next
-#: trough (``bench/results/entry_turn.md``).
+#: The O a branch turn is judged against: the median of this many latest periods (a pulse
+#: just formed swings by a factor of two; ``bench/results/entry_turn.md``).
 TURN_REFERENCE = 3
-#: The trial compares the mean O of the last 2 dither blocks (an even number spans both
-#: signs of the dither) with the best such mean since the branch was chosen (rather than a
-#: block's O against the best block: the best of many single noisy blocks sits some
-#: standard deviations of the noise above the laser's O, so noise alone made the tracker
-#: try the twin). Chosen on the development plants: 1 % noise on E and M cost 0.004 with
-#: it (and the survey's averaged scale, since removed), 0.017 with neither, at 0.002
-#: without noise (``bench/results/noise_levels.md``).
+#: The branch trial compares the mean O of the last this many blocks (both dither signs)
+#: with the best such mean on the branch (``bench/results/noise_levels.md``).
 TRIAL_BLOCKS = 2
 
 
@@ -105,12 +77,8 @@ class TrackingConfig:
     while the comparisons agree in sign and shrinks by ``RPROP_SHRINK`` when they flip
     (Rprop), within [``MIN_STEP``, ``MAX_STEP``]."""
     noise_deadband: float = 1.0
-    """If > 0: the estimate also does not move while the compared difference is under
-    this many standard deviations of the measurement noise of such a difference, the
-    noise read off the run itself (the spread of O between consecutive periods of a
-    block, which ran with the same angles; 0: off). Chosen on the development plants:
-    1 % noise on E and M costs 0.005 with it, 0.012 without
-    (``bench/results/noise_deadband.md``)."""
+    """The estimate moves only on differences above this many standard deviations of the
+    noise read off the run (0: off; ``bench/results/noise_deadband.md``)."""
     entry_patience: int = 3
     """Locked periods under the inner loop before tracking takes over."""
     settle: int = 20
@@ -123,52 +91,33 @@ class TrackingConfig:
     """How far past K = 0 the estimate must go before the tracker turns to the other
     branch (hysteresis, K units)."""
     turn_guard: float = 0.45
-    """During a change of branch, O below this fraction of the O before it means the turn
-    is losing the pulse: the tracker turns back (and turns the other way next time).
-    0.45 rather than 0.6: a weak pulse just formed from noise dips under 0.6 of its O on
-    its own, and entry trials that would have reached the twin's 0.94 O* were given up
-    (0.45 for the entry trial's turn alone did no better on the drift runs). While the
-    new branch is on trial after a turn, O under this fraction takes the laser back at
-    once rather than after ``verify`` periods (the pulse is going where the turn landed);
-    the way round is kept, and the next entries make no entry trial until a turn is kept
-    (a pulse at 0.8 O* was otherwise lost to the same trial at each entry;
-    ``bench/results/entry_turn.md``)."""
+    """During a change of branch, or on trial after it, O under this fraction of the O
+    before it turns back (``bench/results/entry_turn.md``)."""
     trial_drop: float = 0.08
     """Relative fall of O under its best since the branch was chosen that makes the
     tracker try the other branch (0: only the estimate decides)."""
     entry_trial_after: int = 6
-    """Periods after an entry (from the scan or the inner loop) before the entry trial: the
-    other branch is tried once (the scan stops at the first point that passes the lock
-    level and the inner loop enters at ``start``, either of which may be the weaker
-    branch; the turn is kept only if it gains). A pulse
-    the scan locked on the weaker branch at |K| = 0.28 fades to 0.3-0.45 O* within some
-    7 periods, and the turn that keeps it carries it to the twin's 0.94 O*; the twin's
-    own point does not start a pulse from noise there (``bench/results/entry_turn.md``)."""
+    """Periods after an entry before the other branch is tried once (an entry may be on
+    the weaker branch; ``bench/results/entry_turn.md``)."""
     entry_trial_below: float = 0.8
-    """The entry trial is made only if O is then under this fraction of the curve's own
-    steady O at the estimate (the O the curve gave on the simulator; without it, always;
-    0: never)."""
+    """The entry trial is made only if O is under this fraction of the curve's own steady
+    O at the estimate (without that O, always; 0: never)."""
 
     def __post_init__(self) -> None:
-        if not (self.dither > 0 and MIN_STEP <= self.step <= MAX_STEP
-                and self.noise_deadband >= 0):
-            raise ValueError(f'need dither > 0, {MIN_STEP} <= step <= {MAX_STEP}, '
-                             'noise_deadband >= 0')
-        if min(self.block, self.entry_patience, self.guard_periods) < 1 \
-                or self.settle < 0:
-            raise ValueError('block, entry_patience and guard_periods must be '
-                             '>= 1 and settle >= 0')
-        if not 0 < self.guard <= 1:
-            raise ValueError(f'guard must be in (0, 1], got {self.guard}')
-        if self.entry_trial_after < 0:
-            raise ValueError(f'entry_trial_after must be >= 0, got {self.entry_trial_after}')
-        if not self.entry_trial_below >= 0:
-            raise ValueError(f'entry_trial_below must be >= 0, got {self.entry_trial_below}')
-        if not (self.mirror_margin >= 0
-                and 0 < self.turn_guard <= 1
-                and 0 <= self.trial_drop < 1):
-            raise ValueError('need mirror_margin >= 0, 0 < turn_guard <= 1 and '
-                             '0 <= trial_drop < 1')
+        needs = {'dither > 0': self.dither > 0,
+                 f'{MIN_STEP} <= step <= {MAX_STEP}': MIN_STEP <= self.step <= MAX_STEP,
+                 'noise_deadband >= 0': self.noise_deadband >= 0,
+                 'block, entry_patience, guard_periods >= 1':
+                     min(self.block, self.entry_patience, self.guard_periods) >= 1,
+                 'settle >= 0': self.settle >= 0, '0 < guard <= 1': 0 < self.guard <= 1,
+                 'mirror_margin >= 0': self.mirror_margin >= 0,
+                 '0 < turn_guard <= 1': 0 < self.turn_guard <= 1,
+                 '0 <= trial_drop < 1': 0 <= self.trial_drop < 1,
+                 'entry_trial_after >= 0': self.entry_trial_after >= 0,
+                 'entry_trial_below >= 0': self.entry_trial_below >= 0}
+        if not all(needs.values()):
+            failed = ', '.join(k for k, ok in needs.items() if not ok)
+            raise ValueError(f'TrackingConfig needs {failed} ({self})')
 
 
 class TrackerState(Enum):
@@ -207,13 +156,10 @@ class CurveTracker:
     """Per control period: None while the inner loop is in charge, else the angles (4,)
     [rad] on the curve.
 
-    ``grid`` (n,) increasing curve parameters and ``angles`` (n, 4) [rad] the curve's
-    angle sets, continuous along the grid; ``threshold`` is the objective at and above
-    which the laser counts as locked (E/M units); ``expected`` (n,), the steady O on the
-    curve at each grid point, lets the entry trial judge whether O is weak (None: it always
-    is). ``limits`` are the
-    servo limits a change of branch must stay inside (default: :class:`AngleLimits`).
-    ``planner`` turns the curve every ``PLAN_EVERY`` dither blocks (None: never).
+    ``grid`` (n,) increasing curve parameters, ``angles`` (n, 4) [rad] the curve, continuous
+    along it; ``threshold`` the O at which the laser counts as locked; ``expected`` (n,)
+    the curve's steady O (None: the entry trial always runs); ``limits`` the servo limits
+    a branch turn stays inside; ``planner`` turns the curve (None: never).
     """
 
     def __init__(self, grid: np.ndarray, angles: np.ndarray, threshold: float,
