@@ -26,7 +26,8 @@ RESAMPLES = 10_000
 
 
 def runs(path: Path, controller: str | None, metric: str) -> dict[tuple, float]:
-    """``(plant, scenario, seed, controller) -> metric`` of a record's runs."""
+    """``(plant, stress condition or scenario, seed, controller) -> metric`` of a record's
+    runs."""
     record = json.loads(path.read_text())
     out = {}
     for run in record['runs'] if isinstance(record, dict) else record:
@@ -34,8 +35,8 @@ def runs(path: Path, controller: str | None, metric: str) -> dict[tuple, float]:
             continue
         value = run['metrics'].get(metric)
         if value is not None:
-            out[(run['plant'], run['scenario'], int(run['seed']), run['controller'])] = \
-                float(value)
+            out[(run['plant'], run.get('condition') or run['scenario'], int(run['seed']),
+                 run['controller'])] = float(value)
     return out
 
 
