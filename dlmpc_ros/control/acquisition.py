@@ -23,8 +23,6 @@ from dlmpc_ros.control.limits import AngleLimits, into_range
 from dlmpc_ros.core.angles import wrap_angles
 
 
-import os
-LEVEL_PASS = os.environ.get('DLMPC_LEVEL_PASS', '0') == '1'
 #: Surrogate values the map scan visits (equal-probability quantiles of the VAE prior).
 SCAN_POINTS = 9
 #: Largest angle gap [rad] at which the servos count as arrived at a scan point.
@@ -132,7 +130,6 @@ class LockSupervisor:
         self._latest: deque[float] = deque(maxlen=LEVEL_WINDOW)  # finite O
         self.locked_at: ScanPoint | None = None
         self._order: list[ScanPoint] = []
-        self._pass_best = 0.0
         self._target: ScanPoint | None = None
         self._dwell = self._travel = 0
         #: Whether the latest command only moves the servos on (no measurement needed).
@@ -161,8 +158,6 @@ class LockSupervisor:
         cfg = self.config
         if self.unlocked <= (cfg.relock_patience if self.was_locked else cfg.patience):
             return None
-        if self._target is not None and np.isfinite(objective):
-            self._pass_best = max(self._pass_best, float(objective))
         return self._scan(np.asarray(current, float))
 
     def _toward(self, current: np.ndarray) -> np.ndarray:
@@ -195,10 +190,6 @@ class LockSupervisor:
             if self._dwell < self.config.dwell_periods:
                 return self._toward(current)
         if not self._order:
-            if LEVEL_PASS and self._target is not None and self._pass_best > 0:
-                # a whole pass found no lock: the laser's level is what it found
-                self.level = min(self.level, self._pass_best)
-            self._pass_best = 0.0
             self._order = self.source.pass_order(current)
         self._target = self._order.pop(0)
         self._dwell = self._travel = 0

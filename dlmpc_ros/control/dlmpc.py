@@ -1,24 +1,40 @@
 """The DL-MPC controller (paper section 3D): a supervisor over its modes.
 
-Each control period it takes the period's measurement ``(E, M, alpha[4])``
-(:mod:`~dlmpc_ros.control.period_measurement`) and the VAE's K surrogate for it, asks its
-modes (:mod:`~dlmpc_ros.control.modes`) in priority order, and the first that decides
-sets the next angles (within the servo limits):
+Each control period it receives the period's measurement ``(E, M, alpha[4])``
+(:mod:`~dlmpc_ros.control.period_measurement`) and the
+estimator's K surrogate for it (the VAE, run by the caller: the estimator node or
+:class:`~dlmpc_ros.control.estimator.SurrogateEstimator`), and returns the angles for
+the next period. The supervisor asks its modes (:mod:`~dlmpc_ros.control.modes`) in
+priority order and the first that decides acts:
 
-1. ``acquire``: while O says the laser is off its pulse, scan for a lock
-   (:mod:`~dlmpc_ros.control.acquisition`);
-2. ``track``: once locked, follow K along the learned curve by the measured O
-   (:mod:`~dlmpc_ros.control.tracking`); without a curve (``strategy:=paper``) the
-   ``outer`` loop instead: MP-RNN plans of the next N angle sets by gradient ascent on
-   the predicted O, the first applied, re-planned each period
-   (:mod:`~dlmpc_ros.control.planner`), while its one-step forecasts are accurate;
-3. ``inner``: the surrogate through the K-to-angles map;
-4. ``hold``: keep the angles (no surrogate).
+1. ``acquire``: while the measured O says the laser is off its pulse, a lock supervisor
+   (:mod:`~dlmpc_ros.control.acquisition`) scans the map's curve until it locks;
+2. ``track``: once it is locked, the curve tracker (:mod:`~dlmpc_ros.control.tracking`,
+   on by default) moves it onto the best branch-continuous angle curve and follows K
+   along it by extremum seeking on the measured O;
+3. ``outer`` (without a tracking curve only, as in the paper's loops ``strategy:=paper``:
+   beside the tracker its plans changed nothing measurable on the stress suite,
+   ``bench/results/stress_ablation.md``): the MP-RNN predicts the next N states for a plan
+   of N future angle sets, seeded by the previous plan (or by the map through the
+   predicted K), and the plan is improved by gradient ascent on the summed predicted
+   objective (:mod:`~dlmpc_ros.control.planner`). The number of ascent iterations grows
+   by one after an accurate prediction and shrinks after a poor one. The first planned
+   angles are applied (receding horizon);
+4. ``inner`` (while the tracker is not in charge; in the paper's loops while the history
+   is shorter than the MP-RNN needs and whenever the predictor's recent one-step error
+   passes ``error_threshold``): the surrogate through the K-to-angles map;
+5. ``hold``: with no surrogate (a silent estimator) the angles are held.
+
+The predictor is scored only while it plans, so the outer loop, once its error has
+passed the threshold, stays off (re-arming it, bounding its plans or guarding them by
+the measured O cost objective in closed loop: ``docs/evaluation.md``). Measured in
+``bench/results/tracking.md``: the outer loop's plans lose objective, the tracker gains
+it. Angle limits and a maximum step
+per period (servo speed) are enforced on every command.
 """
 
 from __future__ import annotations
 
-import os
 import time
 
 import numpy as np
@@ -38,77 +54,23 @@ from dlmpc_ros.learning.mprnn import MPRNN
 from dlmpc_ros.learning.response import ResponseEnsemble
 
 
-#: Per-period decay of the best measured O's score (to 0.6 of it in 1,000 periods): older
-#: measurements were at another K.
-BEST_DECAY = 0.9995
-#: Largest angle change [rad] between two periods that still counts as the same angles.
-SAME_ANGLES = 1e-3
-
-
-class BestAngles:
-    """The angles with the best O measured lately: each period's score decays by
-    ``BEST_DECAY``; angles held for two periods score the lower O of the two (a pulse
-    just formed overshoots for a period) and replace the best when they score at least
-    its decayed score."""
-
-    def __init__(self) -> None:
-        self.angles: np.ndarray | None = None   # (4,) [rad]
-        self.score = 0.0
-        self._last: tuple[np.ndarray, float] | None = None
-
-    def observe(self, current: np.ndarray, objective: float) -> None:
-        self.score *= BEST_DECAY
-        last, self._last = self._last, (np.array(current, float), float(objective))
-        if last is None or not np.isfinite(objective) or not np.isfinite(last[1]) \
-                or np.max(np.abs(current - last[0])) > SAME_ANGLES:
-            return
-        held = min(objective, last[1])
-        if BEST_RESCORE and self.angles is not None \
-                and np.max(np.abs(current - self.angles)) <= SAME_ANGLES:
-            self.score = held  # the best angles measured again: what they give now
-            return
-        if held >= self.score:
-            self.angles, self.score = np.array(current, float), held
-
-
-class HoldBest:
-    """Hold the best angles measured lately (:class:`BestAngles`; the current ones before
-    any): where the laser is lost, go back to what worked rather than wander."""
-
-    name = 'hold'
-
-    def __init__(self, best: BestAngles) -> None:
-        self.best = best
-
-    threshold = 0.0
-
-    def decide(self, period: Period) -> Decision | None:
-        if BEST_LOCK and (self.best.angles is None or self.best.score < self.threshold):
-            return None
-        return Decision(period.current if self.best.angles is None else self.best.angles,
-                        self.name)
-
-    def stand_down(self) -> None:
-        """Stateless."""
-
-
 #: Largest |surrogate| taken as an estimate (the VAE's latent means lie within a few
 #: units); a larger one, however finite, counts as no estimate.
 SURROGATE_LIMIT = 1e3
-BEST_LOCK = os.environ.get('DLMPC_BEST_LOCK', '0') == '1'
-BEST_RESCORE = os.environ.get('DLMPC_BEST_RESCORE', '0') == '1'
-BEST_RESET = os.environ.get('DLMPC_BEST_RESET', '0') == '1'
-HOLD_BEST = os.environ.get('DLMPC_HOLD_BEST', '0') == '1'
 
 
 class DLMPCController:
     """Stateful DL-MPC controller; one :meth:`step` per control period.
 
-    ``target_objective``: the mean O of the map's training targets (the lock threshold is
-    ``acquisition.lock_fraction`` x it; None: no scan, no tracking). ``curve``: the tracking
-    curve ``(grid (n,), angles (n, 4), steady O (n,))`` (None: no tracking).
-    ``rotation_prior`` and ``turn_correction``: what a calibration bag taught
-    (:mod:`dlmpc_ros.training.adapt`).
+    ``target_objective`` is the mean O of the map's training targets (the map file's
+    ``subset_mean_O``); the lock threshold of the acquisition scan is
+    ``config.acquisition.lock_fraction`` times it. Without it (or with
+    ``config.acquisition`` None) there is no acquisition scan. ``curve`` is the tracking
+    curve ``(grid (n,), angles (n, 4), steady O (n,))`` of the ``track_curve.npz`` model
+    file; without it, without ``target_objective`` or with ``config.tracking`` None,
+    there is no curve tracking. ``rotation_prior`` and ``turn_correction`` are what a
+    calibration from a bag learned (:mod:`dlmpc_ros.training.adapt`): the rotation the
+    curve starts from, the planner's correction (3,) to start from.
     """
 
     name = 'dlmpc'
@@ -144,10 +106,8 @@ class DLMPCController:
             if response is not None and cfg.planner is not None:
                 self.planner = RotationPlanner(response, cfg.planner, turn_correction)
             grid, angles, expected = curve
-            self.best = BestAngles()
             self.tracker = CurveTracker(grid, angles, lock_fraction * target_objective,
-                                        cfg.tracking, expected, cfg.limits, self.planner,
-                                        self.best)
+                                        cfg.tracking, expected, cfg.limits, self.planner)
             if rotation_prior is not None:
                 self.tracker.rotation.start_from(*rotation_prior)
         if target_objective is not None and cfg.acquisition is not None:
@@ -167,15 +127,6 @@ class DLMPCController:
               if self.acquisition is not None else []),
             TrackMode(self.tracker) if self.tracker is not None else self.outer,
             InnerLoop(self.map_angles), HoldMode()]
-        if self.tracker is None:
-            self.best = BestAngles()
-        if self.tracker is not None and HOLD_BEST:
-            hb = HoldBest(self.best)
-            hb.threshold = self.tracker.threshold
-            if BEST_LOCK:
-                self.modes.insert(-2, hb)
-            else:
-                self.modes[-2:] = [hb]
 
     def fresh(self) -> DLMPCController:
         """A controller with the same models and settings and no history."""
@@ -218,10 +169,7 @@ class DLMPCController:
             current=measurement[2:6],
             objective=measurement[0] / measurement[1] if measurement[1] > 0 else float('nan'),
             surrogate=float('nan') if surrogate is None else float(surrogate))
-        self.best.observe(period.current, period.objective)
         decision = self._decide(period)
-        if BEST_RESET and decision.mode == 'acquire':
-            self.best.__init__()  # lost: what was best before may not hold now
         angles = self.config.limits.apply(period.current, decision.angles)
         if self.monitor is not None:
             self.monitor.expect(decision.predicted_next)

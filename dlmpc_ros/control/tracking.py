@@ -42,9 +42,6 @@ RPROP_GROW, RPROP_SHRINK = 1.5, 0.5
 MIN_STEP, MAX_STEP = 0.005, 0.03
 #: Dither blocks between two requests for a turn of the curve (with a planner).
 PLAN_EVERY = 4
-import os
-ENTRY_NEAREST = os.environ.get('DLMPC_ENTRY_NEAREST', '0') == '1'
-GUARD_BEST = os.environ.get('DLMPC_GUARD_BEST', '0') == '1'
 #: Points along the curve that carry the learned rotation.
 ROTATION_KNOTS = 13
 #: Largest learned rotation [rad].
@@ -169,8 +166,7 @@ class CurveTracker:
                  config: TrackingConfig | None = None,
                  expected: np.ndarray | None = None,
                  limits: AngleLimits | None = None,
-                 planner: TurnPlanner | None = None, best=None) -> None:
-        self.best = best
+                 planner: TurnPlanner | None = None) -> None:
         self.grid, self.angles, self.expected = check_curve(grid, angles, expected)
         if not threshold > 0:
             raise ValueError(f'lock threshold must be > 0, got {threshold}')
@@ -258,7 +254,7 @@ class CurveTracker:
         self._latest.append(float(objective) if np.isfinite(objective) else 0.0)
         self.planned = 0.0  # the planner's turn this period [rad]
         if self.state is TrackerState.IDLE:
-            return self._maybe_enter(objective, locked, current)
+            return self._maybe_enter(objective, locked)
         self._age += 1
         if self._age <= self.config.settle and np.isfinite(objective):
             self._settling.append(float(objective))
@@ -269,17 +265,11 @@ class CurveTracker:
         if self.state is TrackerState.TURN:
             return self._turning(float(objective))
         if self._age > self.config.settle:
-            reference = self._entry_objective
-            if GUARD_BEST and self.best is not None:
-                reference = max(reference, self.best.score)
             bad = not (np.isfinite(objective)
-                       and objective >= self.config.guard * reference)
+                       and objective >= self.config.guard * self._entry_objective)
             self._low = self._low + 1 if bad else 0
             if self._low >= self.config.guard_periods:
                 self._forget_unjudged_turn()
-                if GUARD_BEST and self.best is not None:
-                    self._leave(failed=self._age <= self.config.settle + 2 * self.config.block)
-                    return None
                 if self._age > self.config.settle + 2 * self.config.block:
                     self._recentre()  # K moved off the estimate: start again on the curve
                 else:
@@ -346,8 +336,7 @@ class CurveTracker:
             self._age = min(self._age, self.config.settle)  # let the guard settle again
         return self.curve(self.estimate) if command is None else command
 
-    def _maybe_enter(self, objective: float, locked: bool,
-                     current: np.ndarray | None = None) -> np.ndarray | None:
+    def _maybe_enter(self, objective: float, locked: bool) -> np.ndarray | None:
         if self._wait > 0:
             self._wait -= 1
             return None
@@ -361,20 +350,8 @@ class CurveTracker:
         self.active = True
         self._entry_objective = float(np.median(self._recent))
         self._recentre()
-        if ENTRY_NEAREST and current is not None:
-            self.branch, self.estimate = self.nearest(np.asarray(current, float))
         self._entry_trial = True
         return self._command()
-
-    def nearest(self, angles: np.ndarray) -> tuple[int, float]:
-        """The branch and estimate of the curve point (of either branch) nearest ``angles``
-        (4,) [rad] (largest pi-periodic difference of the four)."""
-        points = np.stack([self.on_curve(u) for u in self.grid])          # (n, 4)
-        gaps = [np.max(np.abs(wrap_angles(points + turn - angles)), axis=1)
-                for turn in (0.0, QUARTER_TURN)]
-        branch, i = np.unravel_index(int(np.argmin(np.stack(gaps))), (2, len(self.grid)))
-        sign = 1 if branch == 0 else -1
-        return sign, float(sign * self.grid[i])
 
     def _recentre(self) -> None:
         """Put the estimate back to ``start`` and the dither to its first block."""
