@@ -1,36 +1,20 @@
 """The DL-MPC controller (paper section 3D): a supervisor over its modes.
 
-Each control period it receives the period's measurement ``(E, M, alpha[4])``
-(:mod:`~dlmpc_ros.control.period_measurement`) and the
-estimator's K surrogate for it (the VAE, run by the caller: the estimator node or
-:class:`~dlmpc_ros.control.estimator.SurrogateEstimator`), and returns the angles for
-the next period. The supervisor asks its modes (:mod:`~dlmpc_ros.control.modes`) in
-priority order and the first that decides acts:
+Each control period it takes the period's measurement ``(E, M, alpha[4])``
+(:mod:`~dlmpc_ros.control.period_measurement`) and the VAE's K surrogate for it, asks its
+modes (:mod:`~dlmpc_ros.control.modes`) in priority order, and the first that decides
+sets the next angles (within the servo limits):
 
-1. ``acquire``: while the measured O says the laser is off its pulse, a lock supervisor
-   (:mod:`~dlmpc_ros.control.acquisition`) scans the map's curve until it locks;
-2. ``track``: once it is locked, the curve tracker (:mod:`~dlmpc_ros.control.tracking`,
-   on by default) moves it onto the best branch-continuous angle curve and follows K
-   along it by extremum seeking on the measured O;
-3. ``outer`` (without a tracking curve only, as in the paper's loops ``strategy:=paper``:
-   beside the tracker its plans changed nothing measurable on the stress suite,
-   ``bench/results/stress_ablation.md``): the MP-RNN predicts the next N states for a plan
-   of N future angle sets, seeded by the previous plan (or by the map through the
-   predicted K), and the plan is improved by gradient ascent on the summed predicted
-   objective (:mod:`~dlmpc_ros.control.planner`). The number of ascent iterations grows
-   by one after an accurate prediction and shrinks after a poor one. The first planned
-   angles are applied (receding horizon);
-4. ``inner`` (while the tracker is not in charge; in the paper's loops while the history
-   is shorter than the MP-RNN needs and whenever the predictor's recent one-step error
-   passes ``error_threshold``): the surrogate through the K-to-angles map;
-5. ``hold``: with no surrogate (a silent estimator) the angles are held.
-
-The predictor is scored only while it plans, so the outer loop, once its error has
-passed the threshold, stays off (re-arming it, bounding its plans or guarding them by
-the measured O cost objective in closed loop: ``docs/evaluation.md``). Measured in
-``bench/results/tracking.md``: the outer loop's plans lose objective, the tracker gains
-it. Angle limits and a maximum step
-per period (servo speed) are enforced on every command.
+1. ``acquire``: while O says the laser is off its pulse, scan for a lock
+   (:mod:`~dlmpc_ros.control.acquisition`);
+2. ``track``: once locked, follow K along the learned curve by the measured O
+   (:mod:`~dlmpc_ros.control.tracking`); without a curve (``strategy:=paper``) the
+   ``outer`` loop instead: MP-RNN plans of the next N angle sets by gradient ascent on
+   the predicted O, the first applied, re-planned each period
+   (:mod:`~dlmpc_ros.control.planner`), while its one-step forecasts are accurate;
+3. ``inner``: the surrogate through the K-to-angles map (while the tracker is not in
+   charge);
+4. ``hold``: keep the angles (no surrogate).
 """
 
 from __future__ import annotations
@@ -62,15 +46,11 @@ SURROGATE_LIMIT = 1e3
 class DLMPCController:
     """Stateful DL-MPC controller; one :meth:`step` per control period.
 
-    ``target_objective`` is the mean O of the map's training targets (the map file's
-    ``subset_mean_O``); the lock threshold of the acquisition scan is
-    ``config.acquisition.lock_fraction`` times it. Without it (or with
-    ``config.acquisition`` None) there is no acquisition scan. ``curve`` is the tracking
-    curve ``(grid (n,), angles (n, 4), steady O (n,))`` of the ``track_curve.npz`` model
-    file; without it, without ``target_objective`` or with ``config.tracking`` None,
-    there is no curve tracking. ``rotation_prior`` and ``turn_correction`` are what a
-    calibration from a bag learned (:mod:`dlmpc_ros.training.adapt`): the rotation the
-    curve starts from, the planner's correction (3,) to start from.
+    ``target_objective``: the mean O of the map's training targets (the lock threshold is
+    ``acquisition.lock_fraction`` x it; None: no scan, no tracking). ``curve``: the tracking
+    curve ``(grid (n,), angles (n, 4), steady O (n,))`` (None: no tracking).
+    ``rotation_prior`` and ``turn_correction``: what a calibration bag taught
+    (:mod:`dlmpc_ros.training.adapt`).
     """
 
     name = 'dlmpc'
