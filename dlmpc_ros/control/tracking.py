@@ -6,8 +6,9 @@ dithers ``s`` by ``+-dither`` in blocks of ``block`` periods, compares each bloc
 the blocks around it (which cancels a linear drift of O) and steps toward the higher O.
 
 It enters once the laser has been locked ``entry_patience`` periods (at ``start``) or
-where the scan locked, and hands back when O falls under ``guard`` x the O at entry
-(then waits ``COOLDOWN`` periods, doubled after each failed entry).
+where the scan locked. When O falls under ``guard`` x the O at entry it hands back if it
+entered just before (then waits ``COOLDOWN`` periods, doubled after each failed entry),
+else starts again at ``start``.
 
 The curve is best for K < 0; its mirror twin ``c(-s) + pi/2`` (:mod:`dlmpc_ros.core.symmetry`)
 is as good at K as the curve at -K. The tracker turns to the other branch
