@@ -44,7 +44,7 @@ from dlmpc_ros.core import checks
 from dlmpc_ros.core.angles import angle_distance, wrap_angles
 from dlmpc_ros.core.cavity import Cavity
 from dlmpc_ros.core.config import BIREFRINGENCE_RANGE, CavityConfig
-from dlmpc_ros.core.plants import (PHYSICS_FIELDS, PlantFamily, plant_fingerprint,
+from dlmpc_ros.core.plants import (NOMINAL, PHYSICS_FIELDS, PlantFamily, plant_fingerprint,
                                    plant_parameters)
 from dlmpc_ros.core.steady import run_to_steady
 from dlmpc_ros.core.symmetry import mirror_angles, mirror_fields
@@ -597,7 +597,7 @@ def draw_plant(family: PlantFamily, seed: int, tables: dict[str, np.ndarray],
     cfg = cfg or PlantEnvelopeConfig()
     directory = Path(directory or cache_dir()) / 'draws'
     family_key = hashlib.sha256(json.dumps(family.to_dict(), sort_keys=True).encode())
-    settings = _settings_key(cfg, tables, family.draw(seed, 0))
+    settings = _settings_key(cfg, tables, NOMINAL)  # the draws' solver: the nominal cavity's
     path = directory / f'{family_key.hexdigest()[:8]}-{settings}-{seed}.json'
     if path.is_file():
         attempt = int(json.loads(path.read_text())['attempt'])
@@ -644,7 +644,6 @@ def draw_task(task: PlantTask) -> dict:
 
 def envelope_task(task: PlantTask) -> dict[str, np.ndarray]:
     """The (cached) continued envelope of ``task.plant`` (:func:`cached_plant_envelope`)."""
-    from dlmpc_ros.core.plants import NOMINAL
     from dlmpc_ros.learning.tables import load_baselines
     cavity = replace(NOMINAL, **(task.plant or {}))
     return cached_plant_envelope(cavity, load_baselines(task.tables_path), task.settings,
