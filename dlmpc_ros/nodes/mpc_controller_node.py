@@ -32,31 +32,42 @@ from dlmpc_ros.ros.controller_base import ControllerNodeBase
 if TYPE_CHECKING:  # torch: imported once the node exists (see MPCControllerNode)
     from dlmpc_ros.control.dlmpc import DLMPCController
 
-_CFG = DLMPCConfig()
-DEFAULTS: dict[str, object] = {
-    'min_iterations': _CFG.min_iterations, 'max_iterations': _CFG.max_iterations,
-    'start_iterations': _CFG.start_iterations, 'learning_rate': _CFG.learning_rate,
-    'error_threshold': _CFG.error_threshold, 'accurate_error': _CFG.accurate_error,
-}
+#: The :class:`DLMPCConfig` fields that hold the other configs (not settings).
+NESTED = frozenset({'limits', 'acquisition', 'tracking', 'planner'})
+
+
+def _params(kind: type, prefix: str = '', renamed: dict[str, str] | None = None
+            ) -> dict[str, str]:
+    """Node parameter -> setting, for every setting of the config class ``kind``: the
+    parameter is ``prefix + setting`` unless ``renamed`` names it."""
+    renamed = renamed or {}
+    return {renamed.get(f.name, prefix + f.name): f.name for f in fields(kind)
+            if f.name not in NESTED}
+
+
+def _defaults(kind: type, names: dict[str, str]) -> dict[str, object]:
+    """Node parameter -> the default of its setting."""
+    return {param: getattr(kind(), name) for param, name in names.items()}
+
+
+def _config(kind: type, names: dict[str, str], values: dict, **nested: object) -> object:
+    """``kind`` built from the node's parameter ``values``."""
+    return kind(**{name: values[param] for param, name in names.items()}, **nested)
+
+
+DLMPC_PARAMS = _params(DLMPCConfig)
+ACQUISITION_PARAMS = _params(AcquisitionConfig, renamed={
+    'patience': 'acquire_patience', 'relock_patience': 'acquire_relock_patience',
+    'dwell_periods': 'acquire_dwell'})
+TRACKING_PARAMS = _params(TrackingConfig, 'track_')
+PLANNER_PARAMS = _params(PlannerConfig, 'plan_')
+DEFAULTS = _defaults(DLMPCConfig, DLMPC_PARAMS)
 #: ``dlmpc``: the shipped controller; ``paper``: the paper's loops alone.
 STRATEGIES = ('dlmpc', 'paper')
-_ACQ = AcquisitionConfig()
-ACQUISITION_DEFAULTS: dict[str, object] = {
-    'acquire': True, 'lock_fraction': _ACQ.lock_fraction, 'acquire_patience': _ACQ.patience,
-    'acquire_relock_patience': _ACQ.relock_patience, 'acquire_dwell': _ACQ.dwell_periods,
-}
-#: ``track_<name>`` -> the :class:`TrackingConfig` setting ``<name>`` (every one of them).
-TRACKING_PARAMS = {f'track_{f.name}': f.name for f in fields(TrackingConfig)}
-TRACKING_DEFAULTS: dict[str, object] = {
-    'track': True, **{param: getattr(TrackingConfig(), name)
-                      for param, name in TRACKING_PARAMS.items()},
-}
-_PLN = PlannerConfig()
-PLANNER_DEFAULTS: dict[str, object] = {
-    'plan': True, 'plan_radius': _PLN.radius, 'plan_spread_penalty': _PLN.spread_penalty,
-    'plan_noise_gate': _PLN.noise_gate,
-    'plan_online': _PLN.online, 'plan_explore': _PLN.explore,
-}
+#: Each part's switch, then its settings.
+ACQUISITION_DEFAULTS = {'acquire': True, **_defaults(AcquisitionConfig, ACQUISITION_PARAMS)}
+TRACKING_DEFAULTS = {'track': True, **_defaults(TrackingConfig, TRACKING_PARAMS)}
+PLANNER_DEFAULTS = {'plan': True, **_defaults(PlannerConfig, PLANNER_PARAMS)}
 DESCRIPTIONS = {
     'strategy': f'one of {STRATEGIES}: dlmpc, the shipped controller (lock acquisition, '
                 'curve tracking, planned turns, the VAE + map before the first lock); paper, '
@@ -147,21 +158,14 @@ class MPCControllerNode(ControllerNodeBase):
                                       f'{STRATEGIES}')
         paper = v['strategy'] == 'paper'
         try:
-            acquisition = AcquisitionConfig(
-                lock_fraction=v['lock_fraction'], patience=v['acquire_patience'],
-                relock_patience=v['acquire_relock_patience'],
-                dwell_periods=v['acquire_dwell']) if v['acquire'] and not paper else None
-            tracking = TrackingConfig(**{name: v[param] for param, name
-                                         in TRACKING_PARAMS.items()}
-                                      ) if v['track'] and not paper else None
-            planner = PlannerConfig(
-                radius=v['plan_radius'], spread_penalty=v['plan_spread_penalty'],
-                noise_gate=v['plan_noise_gate'],
-                online=v['plan_online'], explore=v['plan_explore']
-            ) if v['plan'] and not paper else None
-            config = DLMPCConfig(limits=self.limits, acquisition=acquisition, tracking=tracking,
-                                 planner=planner,
-                                 **{name: v[name] for name in DEFAULTS})
+            acquisition = (_config(AcquisitionConfig, ACQUISITION_PARAMS, v)
+                           if v['acquire'] and not paper else None)
+            tracking = (_config(TrackingConfig, TRACKING_PARAMS, v)
+                        if v['track'] and not paper else None)
+            planner = (_config(PlannerConfig, PLANNER_PARAMS, v)
+                       if v['plan'] and not paper else None)
+            config = _config(DLMPCConfig, DLMPC_PARAMS, v, limits=self.limits,
+                             acquisition=acquisition, tracking=tracking, planner=planner)
         except (ValueError, TypeError) as err:
             raise params.StartupError(str(err)) from None
         # torch (about 1 s of CPU) loads after the node's DDS participant exists, so that
