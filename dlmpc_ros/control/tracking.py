@@ -6,9 +6,9 @@ dithers ``s`` by ``+-dither`` in blocks of ``block`` periods, compares each bloc
 the blocks around it (which cancels a linear drift of O) and steps toward the higher O.
 
 It enters once the laser has been locked ``entry_patience`` periods (at ``start``) or
-where the scan locked. When O falls under ``guard`` x the O at entry it hands back if it
-entered just before (then waits ``COOLDOWN`` periods, doubled after each failed entry),
-else starts again at ``start``.
+where the scan locked. An entry that fails (O under ``guard`` x the O at entry in the
+``2 * block`` periods after ``settle``) hands back and waits ``COOLDOWN`` periods, doubled
+after each failed entry; after that it tracks until the scan takes over.
 
 The curve is best for K < 0; its mirror twin ``c(-s) + pi/2`` (:mod:`dlmpc_ros.core.symmetry`)
 is as good at K as the curve at -K. The tracker turns to the other branch
@@ -83,9 +83,10 @@ class TrackingConfig:
     entry_patience: int = 3
     """Locked periods under the inner loop before tracking takes over."""
     settle: int = 20
-    """Periods after entry before the guard judges the objective."""
+    """Periods after entry before the guard judges the objective (for ``2 * block``
+    periods) and the dither's comparisons count."""
     guard: float = 0.85
-    """Fraction of the O measured before entry under which tracking is failing."""
+    """Fraction of the O measured before entry under which an entry has failed."""
     guard_periods: int = 3
     """Consecutive periods below ``guard`` x the entry O that hand back to the inner loop."""
     mirror_margin: float = 0.03
@@ -126,7 +127,7 @@ class TrackerState(Enum):
     IDLE -> DITHER (entry: locked for ``entry_patience`` periods after the cooldown, or
     where the scan locked); DITHER -> TURN (the estimate past ``mirror_margin``, a fall
     of ``trial_drop``, or the entry trial), TURN -> DITHER (kept, returned or abandoned);
-    DITHER -> IDLE (under the guard right after entry; later it restarts at ``start``);
+    DITHER -> IDLE (a failed entry: under the guard right after it);
     any -> IDLE (the scan takes over)."""
 
     IDLE = 'idle'      # not tracking: waiting for a lock and the cooldown
@@ -265,17 +266,14 @@ class CurveTracker:
         self.turner.tick()
         if self.state is TrackerState.TURN:
             return self._turning(float(objective))
-        if self._age > self.config.settle:
+        if self.config.settle < self._age <= self.config.settle + 2 * self.config.block:
             bad = not (np.isfinite(objective)
                        and objective >= self.config.guard * self._entry_objective)
             self._low = self._low + 1 if bad else 0
-            if self._low >= self.config.guard_periods:
+            if self._low >= self.config.guard_periods:  # the entry failed
                 self._forget_unjudged_turn()
-                if self._age > self.config.settle + 2 * self.config.block:
-                    self._recentre()  # K moved off the estimate: start again on the curve
-                else:
-                    self._leave(failed=True)
-                    return None
+                self._leave(failed=True)
+                return None
             if self._age == self.config.settle + 2 * self.config.block:
                 self._cooldown = COOLDOWN  # a successful entry resets it
         if self._entry_trial and self._age > self.config.entry_trial_after \

@@ -96,16 +96,15 @@ DESCRIPTIONS = {
     'track_block': 'control periods per dither half',
     'track_step': 'first change of the curve estimate per compared dither block (K units; '
                   'it adapts between 0.005 and 0.03)',
-    'track_guard': 'hand back to the inner loop when O under tracking falls below this x '
-                   'the O before it took over',
+    'track_guard': 'right after an entry, hand back to the inner loop when O falls below '
+                   'this x the O before tracking took over',
     'track_noise_deadband': 'the curve estimate moves only when the dither\'s O difference '
                             'passes this many standard deviations of the measurement noise '
                             'read off the run; 0: off',
     'track_entry_patience': 'locked control periods under the inner loop before tracking '
                             'takes over',
     'track_settle': 'control periods after entry before the guard judges O',
-    'track_guard_periods': 'consecutive control periods under track_guard that hand back '
-                           '(right after entry) or restart at track_start',
+    'track_guard_periods': 'consecutive control periods under track_guard that hand back',
     'track_mirror_margin': 'how far past K = 0 the estimate must go before the tracker '
                            'turns to the mirror branch (K units)',
     'track_turn_guard': 'during a change of branch, O under this x the O before it turns '

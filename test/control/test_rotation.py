@@ -201,8 +201,8 @@ def test_a_turn_that_loses_the_laser_before_it_is_judged_is_taken_back(toy_model
             break
     turn, u = tracker.planned, tracker.branch * tracker.estimate
     assert turn > 0 and tracker.rotation(u) == pytest.approx(turn)
-    for _ in range(config.guard_periods):   # the pulse goes before the next plan
-        planner.observe(np.exp(0.2), np.exp(3.0))
-        tracker.step(0.05)
+    planner.observe(np.exp(0.2), np.exp(3.0))
+    tracker.step(0.05)                  # the pulse goes before the next plan,
+    tracker.interrupt()                 # and the scan takes over
     assert tracker.rotation(u) == pytest.approx(0.0, abs=1e-12)
     assert planner.undone == 1 and tracker.planned == pytest.approx(-turn)

@@ -120,18 +120,23 @@ def test_the_noise_deadband_reads_the_noise_off_the_run_and_holds_the_estimate_a
     assert tracker._deadband() < 1e-3 and tracker.noise() < 1e-3
 
 
-def test_guard_recentres_then_hands_back_and_waits_a_growing_cooldown():
+def test_a_failed_entry_hands_back_and_waits_a_growing_cooldown_later_the_guard_is_off():
     cfg = TrackingConfig(entry_patience=2, settle=4, guard=0.9, guard_periods=2,
                          block=2, start=0.0)
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
     _drive(tracker, lambda t: 0.0, 40)
     assert tracker.active
     tracker.estimate = 0.25                       # as if K had jumped away from it
-    for _ in range(2):
-        tracker.step(0.15)                        # 0.15 < 0.9 x 0.2, twice
-    assert tracker.active and tracker.estimate == pytest.approx(0.0)   # recentred
+    assert all(tracker.step(0.15) is not None for _ in range(10))  # 0.15 < 0.9 x 0.2
+    assert tracker.active and tracker.estimate != pytest.approx(0.0)  # past the entry: on
+    tracker.interrupt()                           # the scan takes over; a new entry
+    for _ in range(COOLDOWN * 2 + cfg.entry_patience):
+        if tracker.active:
+            break
+        tracker.step(0.2)
+    assert tracker.active
     for _ in range(cfg.settle + 2):
-        last = tracker.step(0.15)                 # still poor right after the recentre
+        last = tracker.step(0.15)                 # poor right after this entry
     assert last is None and not tracker.active    # handed back
     assert sum(tracker.step(0.2) is not None for _ in range(COOLDOWN)) == 0
     # The failed entry doubled the cooldown for the next failure.
