@@ -47,7 +47,8 @@ def _params(kind: type, prefix: str = '', renamed: dict[str, str] | None = None
 
 def _defaults(kind: type, names: dict[str, str]) -> dict[str, object]:
     """Node parameter -> the default of its setting."""
-    return {param: getattr(kind(), name) for param, name in names.items()}
+    default = kind()
+    return {param: getattr(default, name) for param, name in names.items()}
 
 
 def _config(kind: type, names: dict[str, str], values: dict, **nested: object) -> object:
