@@ -34,13 +34,13 @@ CONTROL = ROOT / 'dlmpc_ros' / 'control'
 NOT_CONTROL_LAW = {'__init__.py', 'esc.py', 'ga.py', 'bo.py', 'drl.py', 'observation.py',
                    'baselines.py', 'plugins.py', 'factory.py'}
 #: Modules a control period of the default strategy runs through, callback to published
-#: command (the paper's loops add ``control/planner.py`` and ``learning/mprnn.py``).
+#: command (the paper's loops add ``control/planner.py``, ``learning/features.py`` and
+#: ``learning/mprnn.py``).
 PER_PERIOD = ('nodes/mpc_controller_node.py', 'ros/controller_base.py',
               'control/period_measurement.py', 'control/dlmpc.py', 'control/modes.py',
               'control/acquisition.py', 'control/tracking.py', 'control/branch_turn.py',
-              'control/rotation.py', 'control/rotation_planner.py', 'control/step.py',
-              'control/limits.py', 'learning/features.py', 'learning/kmap.py',
-              'learning/response.py')
+              'control/rotation_planner.py', 'control/step.py', 'control/limits.py',
+              'learning/kmap.py', 'learning/response.py')
 
 
 def lines(path: Path) -> int:

@@ -28,11 +28,11 @@ from dlmpc_ros.control.acquisition import (CURVE_POINTS, SCAN_POINTS, Acquisitio
                                            LockSupervisor, MapScan)
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.rotation_planner import RotationPlanner
-from dlmpc_ros.control.modes import (AcquireMode, Decision, HoldMode, InnerLoop, Mode,
-                                     OuterLoop, Period, PredictionMonitor, TrackMode)
+from dlmpc_ros.control.modes import (AcquireMode, Decision, HoldMode, InnerLoop, Mode, Period,
+                                     TrackMode)
+from dlmpc_ros.control.planner import OuterLoop, PredictionMonitor
 from dlmpc_ros.control.step import ControlStep, implausible
 from dlmpc_ros.control.tracking import CurveScan, CurveTracker
-from dlmpc_ros.learning.features import features
 from dlmpc_ros.learning.kmap import KMap
 from dlmpc_ros.learning.mprnn import MPRNN
 from dlmpc_ros.learning.response import ResponseEnsemble
@@ -76,7 +76,6 @@ class DLMPCController:
         self.model.eval()
         for p in self.model.parameters():
             p.requires_grad_(False)
-        self.norm = mprnn.config.normalizer
         cfg = self.config
         lock_fraction = (cfg.acquisition or AcquisitionConfig()).lock_fraction
         self.acquisition: LockSupervisor | None = None
@@ -143,8 +142,7 @@ class DLMPCController:
             self.planner.observe(measurement[0], measurement[1])
         error = float('nan')  # of the MP-RNN's forecast for this period
         if self.monitor is not None:
-            x = features(torch.as_tensor(measurement, dtype=torch.float32), self.norm)  # (10,)
-            error = self.monitor.observe(x)
+            error = self.monitor.observe(measurement)
         period = Period(
             current=measurement[2:6],
             objective=measurement[0] / measurement[1] if measurement[1] > 0 else float('nan'),

@@ -26,7 +26,7 @@ class DLMPCConfig:
     """Adam step of the plan optimization [rad]."""
     error_threshold: float = 1.0
     """One-step prediction error (normalized state units, mean of the last
-    ``modes.ERROR_MEMORY`` periods) above which the inner loop takes over."""
+    ``planner.ERROR_MEMORY`` periods) above which the inner loop takes over."""
     accurate_error: float = 0.3
     """Errors below this count as accurate (iterations grow)."""
     acquisition: AcquisitionConfig | None = field(default_factory=AcquisitionConfig)

@@ -1,13 +1,16 @@
-"""The DL-MPC's model-predictive step on the laser in front of it: plan the curve's rotation.
+"""The DL-MPC's model-predictive step on the laser in front of it: the curve's learned rotation.
 
-Every ``plan_every`` dither blocks (:class:`~dlmpc_ros.control.tracking.TrackingConfig`)
-the planner asks the steady-response predictor (:mod:`dlmpc_ros.learning.response`) what
-turns ``delta`` of the curve at the current point do to the settled O, and takes the best
-(predicted gain less ``spread_penalty`` x the ensemble's spread) if it beats ``MIN_GAIN``
-and the measurement noise. An :class:`OnlineCorrection` learns the predictor's errors on
-this laser; a move after which O fell under ``UNDO_BELOW`` of its O before is taken back.
+On a laser other than the nominal cavity the best angles move, mostly together: turning all
+four elements by one angle theta recovers most of the gap. :class:`CurveRotation` is
+theta(u) along the curve (the twin at estimate ``s`` is the curve at ``u = -s`` turned a
+quarter turn, so one rotation serves both branches). Every ``PLAN_EVERY`` dither blocks
+(:mod:`~dlmpc_ros.control.tracking`) the :class:`RotationPlanner` asks the steady-response
+predictor (:mod:`dlmpc_ros.learning.response`) what turns ``delta`` at the current point do
+to the settled O, and takes the best (predicted gain less ``spread_penalty`` x the
+ensemble's spread) if it beats ``MIN_GAIN`` and the measurement noise. An
+:class:`OnlineCorrection` learns the predictor's errors on this laser; a move after which O
+fell under ``UNDO_BELOW`` of its O before is taken back.
 """
-
 from __future__ import annotations
 
 from collections import deque
@@ -167,3 +170,51 @@ class RotationPlanner:
         self._pending = (float(deltas[best]), float(mean[best]), log_o)
         self.recent.clear()  # the next plan reads the state after this move
         return float(deltas[best])
+
+
+class CurveRotation:
+    """theta(u) [rad]: a learned turn of all four angles along the curve.
+
+    ``low`` < ``high`` bound the curve parameter (K units), ``knots`` >= 2 points carry
+    the values, ``limit`` [rad] bounds |theta|, ``spread`` (0: off) is :meth:`move`'s prior.
+    """
+
+    def __init__(self, low: float, high: float, knots: int, limit: float,
+                 spread: float = 0.0) -> None:
+        if not (np.isfinite([low, high]).all() and low < high and knots >= 2 and limit > 0
+                and spread >= 0):
+            raise ValueError('need finite low < high, knots >= 2, limit > 0 and spread >= 0')
+        self.spread = float(spread)
+        self.knots = np.linspace(low, high, knots)
+        self.values = np.zeros(knots)
+        #: knots a move was planned next to (their own evidence)
+        self.explored = np.zeros(knots, bool)
+        self.limit = float(limit)
+        self.updates = 0
+
+    def start_from(self, knots: np.ndarray, values: np.ndarray) -> None:
+        """Begin from a calibrated rotation, ``values`` [rad] at ``knots`` (within +-limit)."""
+        self.values = np.clip(np.interp(self.knots, knots, values), -self.limit, self.limit)
+
+    def __call__(self, u: float) -> float:
+        """theta at ``u`` [rad] (u clipped to the knots' range)."""
+        return float(np.interp(u, self.knots, self.values))
+
+    def move(self, u: float, delta: float) -> None:
+        """Change theta(u) by ``delta`` [rad] through the two knots around ``u``, within
+        +-limit. With ``spread`` > 0 every unexplored knot first moves by ``delta`` x
+        exp(-(knot - u)^2 / (2 spread^2)), and the two knots by what theta(u) still lacks."""
+        u = float(np.clip(u, self.knots[0], self.knots[-1]))
+        right = int(np.clip(np.searchsorted(self.knots, u), 1, self.knots.size - 1))
+        w_right = (u - self.knots[right - 1]) / (self.knots[right] - self.knots[right - 1])
+        weights = np.array([1.0 - w_right, w_right])
+        change = delta * weights / float(np.sum(weights ** 2))
+        index = [right - 1, right]
+        if self.spread > 0 and delta:  # the unexplored knots, then the rest at u's two
+            shared = delta * np.exp(-0.5 * ((self.knots - u) / self.spread) ** 2)
+            shared[self.explored] = 0.0
+            self.values = np.clip(self.values + shared, -self.limit, self.limit)
+            change = change * (1.0 - float(np.interp(u, self.knots, shared)) / delta)
+        self.values[index] = np.clip(self.values[index] + change, -self.limit, self.limit)
+        self.explored[index] |= weights > 0
+        self.updates += 1

@@ -15,7 +15,7 @@ is as good at K as the curve at -K. The tracker turns to the other branch
 (:class:`~dlmpc_ros.control.branch_turn.BranchTurn`) when its estimate passes 0 by
 ``mirror_margin`` or O falls ``trial_drop`` under its best on the branch, and keeps the
 turn only if it gains. Every ``PLAN_EVERY`` blocks its planner may turn the curve at the
-current point (the learned rotation, :mod:`dlmpc_ros.control.rotation`).
+current point (the learned rotation, :mod:`dlmpc_ros.control.rotation_planner`).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ import numpy as np
 from dlmpc_ros.control.acquisition import ScanPoint
 from dlmpc_ros.control.branch_turn import ABANDONED, ARRIVED, KEPT, RETURNED, BranchTurn
 from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.rotation import CurveRotation
+from dlmpc_ros.control.rotation_planner import CurveRotation
 from dlmpc_ros.core.angles import wrap_angles
 from dlmpc_ros.core.symmetry import QUARTER_TURN
 from dlmpc_ros.learning.curve import check_curve

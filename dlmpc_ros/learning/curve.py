@@ -67,3 +67,27 @@ def load_curve(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return check_curve(grid, angles, objective)
     except ValueError as err:
         raise ValueError(f'tracking curve {path} is malformed ({err}); {HINT}') from None
+
+
+def locate(angles: np.ndarray, grid: np.ndarray, curve: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Where angle sets ``angles`` (n, 4) [rad] lie on the rotated curve (``grid`` (m,),
+    ``curve`` (m, 4)) and its twin: the grid point ``u`` and rotation ``theta`` [rad] that
+    fit each best (modulo pi, the half-wave plate modulo pi/2; beyond +-pi/4: the twin,
+    ``branch`` -1, ``theta`` less a quarter turn). Returns ``(branch, u, theta, misfit)``,
+    each (n,), the misfit the RMS angle difference left [rad]."""
+    angles = np.asarray(angles, float)[:, None, :]                 # (n, 1, 4)
+    residual = angles - np.asarray(curve, float)[None]             # (n, m, 4)
+    pi_periodic = residual[..., [0, 1, 3]]
+    theta = 0.5 * np.arctan2(np.sin(2 * pi_periodic).sum(-1),
+                             np.cos(2 * pi_periodic).sum(-1))      # (n, m), mod pi
+    left = residual - theta[..., None]
+    left[..., [0, 1, 3]] = (left[..., [0, 1, 3]] + np.pi / 2) % np.pi - np.pi / 2
+    left[..., 2] = (left[..., 2] + np.pi / 4) % (np.pi / 2) - np.pi / 4
+    misfit = np.sqrt(np.mean(left ** 2, axis=-1))                   # (n, m)
+    best = np.argmin(misfit, axis=1)
+    rows = np.arange(best.size)
+    theta = theta[rows, best]
+    twin = np.abs(theta) > np.pi / 4
+    theta = np.where(twin, theta - np.sign(theta) * np.pi / 2, theta)
+    return (np.where(twin, -1, 1), np.asarray(grid, float)[best], theta, misfit[rows, best])

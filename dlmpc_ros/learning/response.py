@@ -1,7 +1,7 @@
 """The DL-MPC's steady-response predictor: what turning the tracking curve does to O.
 
 On a laser that is not the nominal cavity the best angles are mostly the tracking curve
-turned by an angle theta (:mod:`dlmpc_ros.control.rotation`), and which way and how far
+turned by an angle theta (:mod:`dlmpc_ros.control.rotation_planner`), and which way and how far
 shows in what the laser measures. The predictor reads, at the curve point ``u`` the
 tracker is at, the rotation ``theta`` it runs with and the measured ``E`` and ``M``, and
 predicts the change of log O a further turn ``delta`` would bring once the laser has

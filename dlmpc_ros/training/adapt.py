@@ -7,7 +7,7 @@ From ``/laser/state`` alone (E, M and the angles of every round trip; no K, no p
 parameter: a hardware laser has neither) this module
 
 1. places every control period's angles on the rotated curve and its twin
-   (:func:`~dlmpc_ros.control.rotation.locate`: curve point ``u``, rotation ``theta``);
+   (:func:`~dlmpc_ros.learning.curve.locate`: curve point ``u``, rotation ``theta``);
 2. pairs settled periods at the same point within ``window`` periods of each other
    (``u`` within ``same_point``; a period is settled when its angles are those of the
    period before), giving the inputs ``(u, theta_a, log E_a, log M_a, theta_b -
@@ -54,12 +54,11 @@ import torch
 
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
-from dlmpc_ros.control.rotation import locate
 from dlmpc_ros.control.rotation_planner import OnlineCorrection
 from dlmpc_ros.control.tracking import ROTATION_KNOTS
 from dlmpc_ros.core import checks
 from dlmpc_ros.learning.checkpoint import save_checkpoint
-from dlmpc_ros.learning.curve import FILE_NAME, load_curve
+from dlmpc_ros.learning.curve import FILE_NAME, load_curve, locate
 from dlmpc_ros.learning.fit import fit
 from dlmpc_ros.learning.response import LOST, ResponseEnsemble, load_response
 from dlmpc_ros.learning.rotation_prior import save_rotation_prior

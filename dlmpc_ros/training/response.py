@@ -3,7 +3,7 @@ the DL-MPC's steady-response predictor (:mod:`dlmpc_ros.learning.response`).
 
 A lab's laser is never the nominal cavity, and on another cavity the best angles are
 mostly the curve turned by some angle theta (all four elements together; see
-:mod:`dlmpc_ros.control.rotation`): a few hundredths of a radian on some lasers, 0.2 to
+:mod:`dlmpc_ros.control.rotation_planner`): a few hundredths of a radian on some lasers, 0.2 to
 0.4 rad with a 30 % higher objective on others, and with a cliff on one side where the
 pulse is lost. Which way and how far shows in what the laser measures there (E and M).
 

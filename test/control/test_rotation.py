@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from dlmpc_ros.control.rotation import CurveRotation
+from dlmpc_ros.control.rotation_planner import CurveRotation
 from dlmpc_ros.control.rotation_planner import OnlineCorrection, PlannerConfig, RotationPlanner
 from dlmpc_ros.learning.fit import fit
 from dlmpc_ros.learning.response import ResponseEnsemble, ResponseModelConfig

@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from dlmpc_ros.control.rotation import locate
-from dlmpc_ros.learning.curve import load_curve
+from dlmpc_ros.learning.curve import load_curve, locate
 from dlmpc_ros.paths import models_dir
 from dlmpc_ros.learning.response import load_response
 from dlmpc_ros.learning.turn_correction import load_turn_correction, save_turn_correction
