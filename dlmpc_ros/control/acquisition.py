@@ -20,7 +20,9 @@ from typing import Protocol
 import numpy as np
 
 from dlmpc_ros.control.limits import AngleLimits, into_range
+from dlmpc_ros.core import checks
 from dlmpc_ros.core.angles import wrap_angles
+from dlmpc_ros.core.checks import setting
 
 
 #: Surrogate values the map scan visits (equal-probability quantiles of the VAE prior).
@@ -46,20 +48,17 @@ class AcquisitionConfig:
     """Settings of the lock supervisor (times in control periods); the scan lets go at the
     first locked period (``bench/results/acquisition_confirm.md``)."""
 
-    lock_fraction: float = 0.5
-    """Locked when O >= lock_fraction x the mean O of the map's training targets."""
-    patience: int = 3
-    """Unlocked periods before the scan starts (``bench/results/acquisition_pace.md``)."""
-    relock_patience: int = 10
-    """The same once locked in this run (``bench/results/acquisition_pace.md``)."""
-    dwell_periods: int = 3
-    """Periods the scan waits at each point once the servos are there."""
+    lock_fraction: float = setting(0.5, 'locked when O >= this x the mean O of the map\'s '
+                                   'training targets', 1e-6, 0.999999)
+    patience: int = setting(3, 'unlocked control periods before the scan starts '
+                            '(bench/results/acquisition_pace.md)', 1, 1_000_000)
+    relock_patience: int = setting(10, 'unlocked control periods before the scan starts once '
+                                   'the laser has been locked in this run', 1, 1_000_000)
+    dwell_periods: int = setting(3, 'control periods the scan waits at each point once the '
+                                 'servos are there', 1, 1_000_000)
 
     def __post_init__(self) -> None:
-        if not 0 < self.lock_fraction < 1:
-            raise ValueError(f'lock_fraction must be in (0, 1), got {self.lock_fraction}')
-        if min(self.patience, self.relock_patience, self.dwell_periods) < 1:
-            raise ValueError('patience, relock_patience and dwell_periods must be >= 1')
+        checks.in_range(self)
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,11 @@ from dlmpc_ros.control.acquisition import AcquisitionConfig
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.rotation_planner import PlannerConfig
 from dlmpc_ros.control.tracking import TrackingConfig
+from dlmpc_ros.core import checks
+from dlmpc_ros.core.checks import setting
 
+#: Recent periods whose one-step prediction errors the outer loop averages.
+ERROR_MEMORY = 3
 
 @dataclass(frozen=True)
 class DLMPCConfig:
@@ -16,19 +20,20 @@ class DLMPCConfig:
 
     limits: AngleLimits = field(default_factory=AngleLimits)
     """Angle range and servo speed every command obeys."""
-    min_iterations: int = 1
-    """Fewest gradient-ascent iterations of a plan."""
-    max_iterations: int = 8
-    """Most gradient-ascent iterations of a plan."""
-    start_iterations: int = 3
-    """Iterations of the first plan."""
-    learning_rate: float = 0.05
-    """Adam step of the plan optimization [rad]."""
-    error_threshold: float = 1.0
-    """One-step prediction error (normalized state units, mean of the last
-    ``planner.ERROR_MEMORY`` periods) above which the inner loop takes over."""
-    accurate_error: float = 0.3
-    """Errors below this count as accurate (iterations grow)."""
+    min_iterations: int = setting(1, 'MP-RNN outer loop (strategy paper, or track false): '
+                                  'fewest gradient-ascent iterations per plan', 1, 10_000)
+    max_iterations: int = setting(8, 'MP-RNN outer loop: most gradient-ascent iterations per '
+                                  'plan', 1, 10_000)
+    start_iterations: int = setting(3, 'MP-RNN outer loop: iterations of the first plan',
+                                    1, 10_000)
+    learning_rate: float = setting(0.05, 'MP-RNN outer loop: Adam step of the plan '
+                                   'optimization [rad]', 1e-9, 10.0)
+    error_threshold: float = setting(
+        1.0, 'MP-RNN outer loop: one-step prediction error (normalized state units, mean of '
+        f'the last {ERROR_MEMORY} periods) above which the VAE + map inner loop takes over',
+        1e-12, 1e6)
+    accurate_error: float = setting(0.3, 'MP-RNN outer loop: prediction errors below this '
+                                    'count as accurate (one iteration more)', 1e-12, 1e6)
     acquisition: AcquisitionConfig | None = field(default_factory=AcquisitionConfig)
     """The lock acquisition scan (None: off)."""
     tracking: TrackingConfig | None = field(default_factory=TrackingConfig)
@@ -43,7 +48,6 @@ class DLMPCConfig:
         return cls(acquisition=None, tracking=None, planner=None, **settings)
 
     def __post_init__(self) -> None:
-        if not 1 <= self.min_iterations <= self.start_iterations <= self.max_iterations:
-            raise ValueError('need 1 <= min_iterations <= start_iterations <= max_iterations')
-        if not (self.learning_rate > 0 and self.error_threshold > 0 and self.accurate_error > 0):
-            raise ValueError('learning_rate, error_threshold and accurate_error must be > 0')
+        checks.in_range(self)
+        if not self.min_iterations <= self.start_iterations <= self.max_iterations:
+            raise ValueError('need min_iterations <= start_iterations <= max_iterations')

@@ -15,14 +15,11 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from dlmpc_ros.control.dlmpc_config import DLMPCConfig
+from dlmpc_ros.control.dlmpc_config import ERROR_MEMORY, DLMPCConfig
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.modes import Decision, Period
 from dlmpc_ros.learning.features import features
 from dlmpc_ros.learning.mprnn import MPRNN
-
-#: Recent periods whose one-step prediction errors are averaged.
-ERROR_MEMORY = 3
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from dlmpc_ros.core import checks
+from dlmpc_ros.core.checks import setting
 
 if TYPE_CHECKING:  # torch-based: the caller loads it
     from dlmpc_ros.learning.response import ResponseEnsemble
@@ -44,23 +45,21 @@ UNDO_BELOW = 0.85
 class PlannerConfig:
     """Settings of the rotation planner."""
 
-    radius: float = 0.1
-    """Trust radius: the largest turn of one plan [rad]."""
-    spread_penalty: float = 1.0
-    """Weight of the ensemble spread against its mean gain (``bench/results/planner_gate.md``)."""
-    noise_gate: float = 1.0
-    """A move must also be predicted to gain more than this many standard deviations of
-    its own measured gain's noise, ``noise * sqrt(2 / MEASUREMENTS)`` (``noise``: one
-    period's log O noise; 0: off; ``bench/results/noise_gate.md``)."""
-    online: bool = True
-    """Correct the predictor online from the run's own moves."""
-    explore: bool = False
-    """Calibration runs: every plan a random turn within the radius (seeded 0; undo guards)."""
+    radius: float = setting(0.1, 'trust radius: largest turn of the curve per plan [rad]',
+                            1e-3, 1.0)
+    spread_penalty: float = setting(1.0, "weight of the predictor ensemble's spread against "
+                                    'its mean gain (bench/results/planner_gate.md)', 0.0, 100.0)
+    noise_gate: float = setting(
+        1.0, 'a turn must be predicted to gain this many standard deviations of the noise of '
+        f'its own measured gain, noise x sqrt(2 / {MEASUREMENTS}) (noise: one period\'s log O '
+        'noise; 0: off; bench/results/noise_gate.md)', 0.0, 100.0)
+    online: bool = setting(True, "correct the predictor online from the run's own turns")
+    explore: bool = setting(False, 'calibration runs: a random turn within the trust radius '
+                            'each plan instead of the planned one (seeded 0; the undo '
+                            'guards); record a bag for `dlmpc-train adapt`')
 
     def __post_init__(self) -> None:
-        checks.positive(self, 'radius')
-        checks.non_negative(self, 'spread_penalty')
-        checks.non_negative(self, 'noise_gate')
+        checks.in_range(self)
 
 
 class OnlineCorrection:

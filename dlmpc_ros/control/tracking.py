@@ -31,7 +31,9 @@ from dlmpc_ros.control.acquisition import ScanPoint
 from dlmpc_ros.control.branch_turn import ABANDONED, ARRIVED, KEPT, RETURNED, BranchTurn
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.rotation_planner import CurveRotation
+from dlmpc_ros.core import checks
 from dlmpc_ros.core.angles import wrap_angles
+from dlmpc_ros.core.checks import setting
 from dlmpc_ros.core.symmetry import QUARTER_TURN
 from dlmpc_ros.learning.curve import check_curve
 
@@ -67,59 +69,46 @@ TRIAL_BLOCKS = 2
 class TrackingConfig:
     """Settings of the curve tracker (times in control periods; ``s`` in K's units)."""
 
-    start: float = -0.1
-    """Curve parameter at which tracking starts (a point that locks from most pulses)."""
-    dither: float = 0.03
-    """Half-amplitude of the dither on ``s``."""
-    block: int = 3
-    """Control periods per dither half."""
-    step: float = 0.015
-    """First change of the estimate after a compared block; it grows by ``RPROP_GROW``
-    while the comparisons agree in sign and shrinks by ``RPROP_SHRINK`` when they flip
-    (Rprop), within [``MIN_STEP``, ``MAX_STEP``]."""
-    noise_deadband: float = 1.0
-    """The estimate moves only on differences above this many standard deviations of the
-    noise read off the run (0: off; ``bench/results/noise_deadband.md``)."""
-    entry_patience: int = 3
-    """Locked periods under the inner loop before tracking takes over."""
-    settle: int = 20
-    """Periods after entry before the guard judges the objective (for ``2 * block``
-    periods) and the dither's comparisons count."""
-    guard: float = 0.85
-    """Fraction of the O measured before entry under which an entry has failed."""
-    guard_periods: int = 3
-    """Consecutive periods below ``guard`` x the entry O that hand back to the inner loop."""
-    mirror_margin: float = 0.03
-    """How far past K = 0 the estimate must go before the tracker turns to the other
-    branch (hysteresis, K units)."""
-    turn_guard: float = 0.45
-    """During a change of branch, or on trial after it, O under this fraction of the O
-    before it turns back (``bench/results/entry_turn.md``)."""
-    trial_drop: float = 0.08
-    """Relative fall of O under its best since the branch was chosen that makes the
-    tracker try the other branch (0: only the estimate decides)."""
-    entry_trial_after: int = 6
-    """Periods after an entry before the other branch is tried once (an entry may be on
-    the weaker branch; ``bench/results/entry_turn.md``)."""
-    entry_trial_below: float = 0.8
-    """The entry trial is made only if O is under this fraction of the curve's own steady
-    O at the estimate (without that O, always; 0: never)."""
+    start: float = setting(-0.1, 'curve parameter where tracking starts after the inner '
+                           'loop (K units; a point that locks from most pulses)', -1.0, 1.0)
+    dither: float = setting(0.03, 'half-amplitude of the dither on the curve parameter '
+                            '(K units)', 1e-9, 1.0)
+    block: int = setting(3, 'control periods per dither half', 1, 10_000)
+    step: float = setting(0.015, 'first change of the estimate per compared dither block '
+                          f'(K units); it grows by {RPROP_GROW} while the comparisons agree '
+                          f'in sign and shrinks by {RPROP_SHRINK} when they flip (Rprop), '
+                          f'within [{MIN_STEP}, {MAX_STEP}]', MIN_STEP, MAX_STEP)
+    noise_deadband: float = setting(
+        1.0, "the estimate moves only when the dither's O difference passes this many "
+        'standard deviations of the measurement noise read off the run (0: off; '
+        'bench/results/noise_deadband.md)', 0.0, 10.0)
+    entry_patience: int = setting(3, 'locked control periods under the inner loop before '
+                                  'tracking takes over', 1, 1_000_000)
+    settle: int = setting(20, 'control periods after entry before the guard judges O (for '
+                          '2 x block periods) and the dither\'s comparisons count',
+                          0, 1_000_000)
+    guard: float = setting(0.85, 'right after an entry, hand back to the inner loop when O '
+                           'falls below this x the O at entry', 1e-6, 1.0)
+    guard_periods: int = setting(3, 'consecutive control periods under the guard that hand '
+                                 'back', 1, 1_000_000)
+    mirror_margin: float = setting(0.03, 'how far past K = 0 the estimate must go before '
+                                   'the tracker turns to the mirror branch (K units)',
+                                   0.0, 1.0)
+    turn_guard: float = setting(0.45, 'during a change of branch, or on trial after it, O '
+                                'under this x the O before it turns back '
+                                '(bench/results/entry_turn.md)', 1e-6, 1.0)
+    trial_drop: float = setting(0.08, 'relative fall of O under its best on this branch '
+                                'that makes the tracker try the other branch (0: only the '
+                                'estimate decides)', 0.0, 0.999999)
+    entry_trial_after: int = setting(6, 'control periods after an entry before the other '
+                                     'branch is tried once (an entry may be on the weaker '
+                                     'branch; bench/results/entry_turn.md)', 0, 1_000_000)
+    entry_trial_below: float = setting(0.8, 'the entry trial is made only if O is under '
+                                       "this x the curve's own steady O at the estimate "
+                                       '(without that O, always; 0: never)', 0.0, 100.0)
 
     def __post_init__(self) -> None:
-        needs = {'dither > 0': self.dither > 0,
-                 f'{MIN_STEP} <= step <= {MAX_STEP}': MIN_STEP <= self.step <= MAX_STEP,
-                 'noise_deadband >= 0': self.noise_deadband >= 0,
-                 'block, entry_patience, guard_periods >= 1':
-                     min(self.block, self.entry_patience, self.guard_periods) >= 1,
-                 'settle >= 0': self.settle >= 0, '0 < guard <= 1': 0 < self.guard <= 1,
-                 'mirror_margin >= 0': self.mirror_margin >= 0,
-                 '0 < turn_guard <= 1': 0 < self.turn_guard <= 1,
-                 '0 <= trial_drop < 1': 0 <= self.trial_drop < 1,
-                 'entry_trial_after >= 0': self.entry_trial_after >= 0,
-                 'entry_trial_below >= 0': self.entry_trial_below >= 0}
-        if not all(needs.values()):
-            failed = ', '.join(k for k, ok in needs.items() if not ok)
-            raise ValueError(f'TrackingConfig needs {failed} ({self})')
+        checks.in_range(self)
 
 
 class TrackerState(Enum):

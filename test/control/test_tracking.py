@@ -18,7 +18,7 @@ from dlmpc_ros.learning.kmap import KMap, KMapConfig
 from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
 
 #: ``entry_trial_after`` that never comes: tests of other turns leave the entry trial out
-NEVER = 10 ** 9
+NEVER = 1_000_000  # the largest the setting takes
 
 GRID = np.linspace(-0.3, 0.3, 61)
 #: A toy curve whose first angle is twice its parameter, so a command tells its s.
