@@ -20,9 +20,8 @@ from typing import Protocol
 import numpy as np
 
 from dlmpc_ros.control.limits import AngleLimits, into_range
-from dlmpc_ros.core import checks
 from dlmpc_ros.core.angles import wrap_angles
-from dlmpc_ros.core.checks import setting
+from dlmpc_ros.core.checks import in_range, setting
 
 
 #: Surrogate values the map scan visits (equal-probability quantiles of the VAE prior).
@@ -58,7 +57,7 @@ class AcquisitionConfig:
                                  'servos are there', 1, 1_000_000)
 
     def __post_init__(self) -> None:
-        checks.in_range(self)
+        in_range(self)
 
 
 @dataclass(frozen=True)

@@ -8,11 +8,11 @@ from dlmpc_ros.control.acquisition import AcquisitionConfig
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.rotation_planner import PlannerConfig
 from dlmpc_ros.control.tracking import TrackingConfig
-from dlmpc_ros.core import checks
-from dlmpc_ros.core.checks import setting
+from dlmpc_ros.core.checks import in_range, setting
 
 #: Recent periods whose one-step prediction errors the outer loop averages.
 ERROR_MEMORY = 3
+
 
 @dataclass(frozen=True)
 class DLMPCConfig:
@@ -48,6 +48,6 @@ class DLMPCConfig:
         return cls(acquisition=None, tracking=None, planner=None, **settings)
 
     def __post_init__(self) -> None:
-        checks.in_range(self)
+        in_range(self)
         if not self.min_iterations <= self.start_iterations <= self.max_iterations:
             raise ValueError('need min_iterations <= start_iterations <= max_iterations')

@@ -19,8 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from dlmpc_ros.core import checks
-from dlmpc_ros.core.checks import setting
+from dlmpc_ros.core.checks import in_range, setting
 
 if TYPE_CHECKING:  # torch-based: the caller loads it
     from dlmpc_ros.learning.response import ResponseEnsemble
@@ -59,7 +58,7 @@ class PlannerConfig:
                             'guards); record a bag for `dlmpc-train adapt`')
 
     def __post_init__(self) -> None:
-        checks.in_range(self)
+        in_range(self)
 
 
 class OnlineCorrection:

@@ -31,9 +31,8 @@ from dlmpc_ros.control.acquisition import ScanPoint
 from dlmpc_ros.control.branch_turn import ABANDONED, ARRIVED, KEPT, RETURNED, BranchTurn
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.rotation_planner import CurveRotation
-from dlmpc_ros.core import checks
 from dlmpc_ros.core.angles import wrap_angles
-from dlmpc_ros.core.checks import setting
+from dlmpc_ros.core.checks import in_range, setting
 from dlmpc_ros.core.symmetry import QUARTER_TURN
 from dlmpc_ros.learning.curve import check_curve
 
@@ -108,7 +107,7 @@ class TrackingConfig:
                                        '(without that O, always; 0: never)', 0.0, 100.0)
 
     def __post_init__(self) -> None:
-        checks.in_range(self)
+        in_range(self)
 
 
 class TrackerState(Enum):

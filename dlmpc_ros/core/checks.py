@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from typing import Any
 
 
@@ -80,8 +81,9 @@ def in_range(owner: object) -> None:
             continue
         value = getattr(owner, f.name)
         whole = isinstance(f.default, int) and not isinstance(f.default, bool)
-        if not (_real(value) and span[0] <= value <= span[1]
-                and (isinstance(value, int) or not whole)):
+        number = isinstance(value, numbers.Integral if whole else numbers.Real)
+        if not (number and not isinstance(value, bool) and math.isfinite(value)
+                and span[0] <= value <= span[1]):
             _fail(owner, f.name, f"{'an integer' if whole else 'a number'} in "
                                  f'[{span[0]:g}, {span[1]:g}]')
 

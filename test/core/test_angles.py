@@ -1,4 +1,5 @@
-"""Angle arithmetic of the pi-periodic elements, and the settings checks."""
+"""Angle arithmetic of the pi-periodic elements, and the settings checks (with a setting's
+description and range)."""
 
 import math
 
@@ -44,3 +45,27 @@ def test_checks_name_the_class_the_field_and_the_value():
     Settings.rate = float('nan')
     with pytest.raises(ValueError, match='finite'):
         checks.finite(Settings(), 'rate')
+
+
+def test_a_setting_carries_its_description_and_range_and_is_checked_against_it():
+    from dataclasses import dataclass
+
+    @dataclass(frozen=True)
+    class Settings:
+        count: int = checks.setting(3, 'periods', 1, 10)
+        rate: float = checks.setting(0.5, 'a rate [rad]', 0.0, 1.0)
+        on: bool = checks.setting(True, 'a switch')
+
+        def __post_init__(self) -> None:
+            checks.in_range(self)
+
+    assert checks.described(Settings) == {'count': ('periods', (1, 10)),
+                                          'rate': ('a rate [rad]', (0.0, 1.0)),
+                                          'on': ('a switch', None)}
+    Settings(count=np.int64(10), rate=np.float32(0.0))     # numpy numbers, at the ends
+    for bad, why in ((dict(count=11), r'count must be an integer in \[1, 10\]'),
+                     (dict(count=2.0), 'count must be an integer'),
+                     (dict(count=True), 'count must be an integer'),
+                     (dict(rate=float('nan')), r'rate must be a number in \[0, 1\]')):
+        with pytest.raises(ValueError, match=rf'Settings\.{why}'):
+            Settings(**bad)
