@@ -17,8 +17,8 @@ The keys of every node are listed in ``docs/interfaces.md``.
 from __future__ import annotations
 
 import math
-from collections import deque
-from collections.abc import Mapping
+from collections import Counter, deque
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 from dlmpc_ros.interfaces import RateLimitedLog
@@ -116,10 +116,17 @@ def laser_health(findings: Findings, window: CounterWindow, round_trip: int,
 
 def controller_health(findings: Findings, mode: str | None, objective: float | None,
                       lock_threshold: float | None, commands: int,
-                      estimate_age_periods: float | None, uses_estimator: bool) -> Health:
-    """A controller node: its last mode, the measured O against its lock threshold (when
-    it has one), commands published, and the age of the estimate it last used."""
+                      estimate_age_periods: float | None, uses_estimator: bool,
+                      recent_modes: Sequence[str] = ()) -> Health:
+    """A controller node: its last mode, the share of each mode in its ``recent_modes``
+    (the modes of its latest decisions, so that a laser that keeps losing its pulse shows),
+    the measured O against its lock threshold (when it has one), commands published, and
+    the age of the estimate it last used."""
     findings.values.update(mode=mode or 'none yet', commands_published=commands)
+    if recent_modes:
+        counts = Counter(recent_modes)
+        findings.values[f'modes_last_{len(recent_modes)}_decisions'] = ', '.join(
+            f'{m} {100 * n / len(recent_modes):.0f} %' for m, n in counts.most_common())
     if objective is not None:
         findings.values['objective'] = objective
     if lock_threshold is not None and objective is not None:

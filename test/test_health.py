@@ -59,6 +59,10 @@ def test_a_controller_below_its_lock_threshold_warns():
     assert nan.level == WARN and 'estimate_age_periods' not in dict(nan.values)
     fresh = controller_health(Findings(), None, None, None, 0, None, uses_estimator=False)
     assert fresh.level == OK and fresh.message == 'waiting for the first period'
+    assert not any(key.startswith('modes_last') for key, _ in fresh.values)
+    scanning = controller_health(Findings(), 'track', 0.2, 0.1, 4, None, uses_estimator=False,
+                                 recent_modes=['acquire', 'track', 'acquire', 'inner'])
+    assert scanning.value('modes_last_4_decisions') == 'acquire 50 %, track 25 %, inner 25 %'
 
 
 def test_a_level_is_ok_warn_or_error():

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 
 import numpy as np
 from rclpy.node import Node
@@ -75,6 +76,8 @@ COMMON_RANGES: dict[str, tuple[float, float]] = {
 
 #: Longest wait at start for the estimator to read /controller/measurement [s].
 ESTIMATOR_WAIT = 3.0
+#: Latest decisions whose modes /diagnostics sums up.
+RECENT_DECISIONS = 1000
 
 
 def period_measurement_from(values: dict) -> PeriodMeasurement:
@@ -127,6 +130,7 @@ class ControllerNodeBase(Node):
         self._last_state: float | None = None
         self._last_estimate: float | None = None
         self._last_mode: str | None = None
+        self._recent_modes: deque[str] = deque(maxlen=RECENT_DECISIONS)
         self._last_objective: float | None = None
         self._estimate_age: float | None = None
         self._drops = CounterWindow()
@@ -177,7 +181,7 @@ class ControllerNodeBase(Node):
         supervisor = getattr(self.controller, 'acquisition', None)
         return controller_health(findings, self._last_mode, self._last_objective,
                                  getattr(supervisor, 'threshold', None), self.steps,
-                                 self._estimate_age, self.uses_estimator)
+                                 self._estimate_age, self.uses_estimator, self._recent_modes)
 
     def _on_state(self, msg: Float64MultiArray) -> None:
         if not itf.usable_state(msg.data, self._warn):
@@ -267,6 +271,7 @@ class ControllerNodeBase(Node):
         age = -1.0 if self._last_estimate_round_trip is None else (
             (round_trip - self._last_estimate_round_trip) / self.period)
         self._last_mode, self._last_objective = step.mode, float(state[3])
+        self._recent_modes.append(step.mode)
         self._estimate_age = None if age < 0 else age
         valid = math.isfinite(step.surrogate)
         error = step.prediction_error if math.isfinite(step.prediction_error) else -1.0

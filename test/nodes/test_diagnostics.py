@@ -47,6 +47,8 @@ def test_laser_and_controller_report_their_health_and_a_dead_laser_is_an_error(
         ctrl = _latest(box, 'baseline_controller')
         assert ctrl.level == bytes([OK]), ctrl.message
         assert _values(ctrl)['mode'] == 'esc' and int(_values(ctrl)['commands_published']) > 0
+        recent = [v for k, v in _values(ctrl).items() if k.startswith('modes_last_')]
+        assert recent == ['esc 100 %']    # what the controller has been doing lately
 
         # malformed commands: a warning that names the topic and the reason
         for _ in range(3):
