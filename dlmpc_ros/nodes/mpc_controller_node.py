@@ -52,13 +52,18 @@ def _defaults(kind: type, names: dict[str, str]) -> dict[str, object]:
     return {param: getattr(default, name) for param, name in names.items()}
 
 
-def _described(kind: type, names: dict[str, str]
+def _described(parts: tuple[tuple[type, dict[str, str]], ...]
                ) -> tuple[dict[str, str], dict[str, tuple[float, float]]]:
-    """Node parameter -> its setting's description, and -> its range (numbers)."""
-    settings = checks.described(kind)
-    return ({param: settings[name][0] for param, name in names.items()},
-            {param: settings[name][1] for param, name in names.items()
-             if settings[name][1] is not None})
+    """Node parameter -> its setting's description, and -> its range (numbers), for the
+    config classes and their parameter names in ``parts``."""
+    descriptions, ranges = {}, {}
+    for kind, names in parts:
+        settings = checks.described(kind)
+        for param, name in names.items():
+            descriptions[param], span = settings[name]
+            if span is not None:
+                ranges[param] = span
+    return descriptions, ranges
 
 
 def _config(kind: type, names: dict[str, str], values: dict, **nested: object) -> object:
@@ -79,9 +84,13 @@ STRATEGIES = ('dlmpc', 'paper')
 ACQUISITION_DEFAULTS = {'acquire': True, **_defaults(AcquisitionConfig, ACQUISITION_PARAMS)}
 TRACKING_DEFAULTS = {'track': True, **_defaults(TrackingConfig, TRACKING_PARAMS)}
 PLANNER_DEFAULTS = {'plan': True, **_defaults(PlannerConfig, PLANNER_PARAMS)}
-#: Descriptions and ranges: the node's own switches here, every setting's beside it
-#: in its config class (:func:`~dlmpc_ros.core.checks.setting`).
+#: Descriptions and ranges: every setting's beside it in its config class
+#: (:func:`~dlmpc_ros.core.checks.setting`), then the node's own switches.
+SETTING_DESCRIPTIONS, RANGES = _described((
+    (DLMPCConfig, DLMPC_PARAMS), (AcquisitionConfig, ACQUISITION_PARAMS),
+    (TrackingConfig, TRACKING_PARAMS), (PlannerConfig, PLANNER_PARAMS)))
 DESCRIPTIONS = {
+    **SETTING_DESCRIPTIONS,
     'strategy': f'one of {STRATEGIES}: dlmpc, the shipped controller (lock acquisition, '
                 'curve tracking, planned turns, the VAE + map before the first lock); paper, '
                 'the paper\'s DL-MPC alone (VAE + map inner loop, MP-RNN outer loop; the '
@@ -92,12 +101,6 @@ DESCRIPTIONS = {
     'plan': 'while tracking, turn the curve where the steady-response predictor '
             '(response.pt) says O gains (the model-predictive step on this laser)',
 }
-RANGES: dict[str, tuple[float, float]] = {}
-for _kind, _names in ((DLMPCConfig, DLMPC_PARAMS), (AcquisitionConfig, ACQUISITION_PARAMS),
-                      (TrackingConfig, TRACKING_PARAMS), (PlannerConfig, PLANNER_PARAMS)):
-    _text, _span = _described(_kind, _names)
-    DESCRIPTIONS.update(_text)
-    RANGES.update(_span)
 
 
 class MPCControllerNode(ControllerNodeBase):
