@@ -55,6 +55,10 @@ def report(before: dict, after: dict, title: str) -> str:
              'passive | fixed_best | after - better baseline |',
              '|---|---|---|---|---|---|---|---|']
     harm, per_condition = [], defaultdict(list)
+    # plant x condition cells: the DL-MPC after against every other controller in the
+    # tables, each as its mean over the cell's seeds
+    others = sorted({k[3] for k in (*after, *before) if k[3] != 'dlmpc'})
+    cell_means = defaultdict(lambda: defaultdict(list))  # (plant, cond) -> ctrl -> ratios
     for plant, cond, seed in cells:
         old = ratio(plant, cond, seed, 'dlmpc', [before])
         new = ratio(plant, cond, seed, 'dlmpc', [after])
@@ -64,6 +68,12 @@ def report(before: dict, after: dict, title: str) -> str:
         if margin is not None and margin < -0.01:
             harm.append(f'{plant} {cond} seed {seed} {new:.3f} against {max(known):.3f}')
         per_condition[cond].append((old, new, *base))
+        found = {'dlmpc': new, **dict(zip(BASELINES, base)),
+                 **{c: ratio(plant, cond, seed, c, [after, before])
+                    for c in others if c not in BASELINES}}
+        for ctrl, value in found.items():
+            if value is not None:
+                cell_means[(plant, cond)][ctrl].append(value)
         lines.append(f'| {plant} | {cond} | {seed} | {text(old)} | {text(new)} | '
                      f'{text(base[0])} | {text(base[1])} | '
                      f'{"-" if margin is None else f"{margin:+.3f}"} |')
@@ -78,15 +88,6 @@ def report(before: dict, after: dict, title: str) -> str:
         lines.append(f'| {cond} | ' + ' | '.join(means) + ' |')
     olds = [r[0] for rows in per_condition.values() for r in rows if r[0] is not None]
     news = [r[1] for rows in per_condition.values() for r in rows if r[1] is not None]
-    # plant x condition cells: the DL-MPC after against every other controller in the
-    # tables, each as its mean over the cell's seeds
-    others = sorted({k[3] for k in (*after, *before) if k[3] != 'dlmpc'})
-    cell_means = defaultdict(lambda: defaultdict(list))  # (plant, cond) -> ctrl -> ratios
-    for plant, cond, seed in cells:
-        for ctrl in ('dlmpc', *others):
-            value = ratio(plant, cond, seed, ctrl, [after] if ctrl == 'dlmpc' else [after, before])
-            if value is not None:
-                cell_means[(plant, cond)][ctrl].append(value)
     compared = {cell: runs for cell, runs in cell_means.items() if 'dlmpc' in runs}
     above = sum(np.mean(runs['dlmpc']) > max(np.mean(runs[c]) for c in runs if c != 'dlmpc')
                 for runs in compared.values() if len(runs) > 1)
