@@ -144,6 +144,10 @@ def test_respawn_restarts_killed_nodes_while_the_laser_runs_on(ros_env, tmp_path
     locked = run['O'] >= level
     for victim, kill in kills.items():
         window = locked[kill.back - 1:kill.back - 1 + RELOCK_WITHIN]
+        assert window.size >= LOCKED_FOR, (
+            f'the record ends at round trip {round_trips[-1]}, before {victim} came back at '
+            f'round trip {kill.back} (+ {LOCKED_FOR}); the laser ran on to '
+            f'{int(truths[-1].data[0])}')
         runs = np.convolve(window, np.ones(LOCKED_FOR), 'valid')
         assert runs.max() == LOCKED_FOR, (
             f'no mode-locking ({what}) within {RELOCK_WITHIN} round trips after {victim} '
