@@ -1,15 +1,9 @@
 """The DL-MPC's modes: one object per way of choosing the next angles, with one verb.
 
-Each period the supervisor (:class:`~dlmpc_ros.control.dlmpc.DLMPCController`) asks its
-modes ``decide(period)`` in priority order; the first :class:`Decision` acts and the modes
-after it ``stand_down`` (drop what they had under way). None passes. Highest first:
-
-- :class:`AcquireMode` (``acquire``): lock scan (:mod:`~dlmpc_ros.control.acquisition`);
-- :class:`TrackMode` (``track``): curve tracker (:mod:`~dlmpc_ros.control.tracking`);
-- :class:`~dlmpc_ros.control.planner.OuterLoop` (``outer``, the paper's loops only):
-  MP-RNN plans;
-- :class:`InnerLoop` (``inner``): the estimator's surrogate through the K-to-angles map;
-- :class:`HoldMode` (``hold``): keep the angles (no surrogate).
+Each period the supervisor (:class:`~dlmpc_ros.control.dlmpc.DLMPCController`, whose
+docstring lists them in priority order) asks its modes ``decide(period)``; the first
+:class:`Decision` acts and the modes after it ``stand_down`` (drop what they had under way).
+None passes.
 """
 
 from __future__ import annotations
