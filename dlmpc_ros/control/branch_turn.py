@@ -50,7 +50,8 @@ ARRIVED, KEPT, RETURNED, ABANDONED = (TurnEvent.ARRIVED, TurnEvent.KEPT, TurnEve
 FREE_TURN = 0.06
 #: Relative gain of O the new branch must bring to be kept.
 BRANCH_GAIN = 0.005
-#: Turn of all four angles per period while changing branch [rad] (<= the servo speed).
+#: Turn of all four angles per period while changing branch [rad] (<= the servo speed;
+#: 0.1 lost O, 0.25 measured nothing, ``bench/results/turn_step.md``).
 TURN_STEP = 0.2
 #: Periods after a turn (made or given up) before the next may start.
 TURN_COOLDOWN = 100
