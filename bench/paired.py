@@ -1,16 +1,24 @@
-"""Paired difference of two ``dlmpc-evaluate`` records: the same runs before and after a change.
+"""Paired difference of two records of the same runs before and after a change.
 
-Runs are paired by plant, scenario (or stress condition), seed and controller; the figure is
-each run's ``oracle_ratio`` (mean O over its plant's envelope) unless ``--metric`` names
-another. Prints the mean of each side, the mean difference (after minus before) with a
-bootstrap 90 % interval over the paired runs (seeded, so the same records give the same
-interval), and how many runs moved by more than ``--by`` either way; runs that are in only
-one record are counted and left out.
+A record is a ``dlmpc-evaluate`` ``metrics.json`` or a ``bench/dlmpc_variants.py`` output
+(one variant of it: ``--before-variant``, ``--after-variant``), or sections of a JSON
+file holding several, ``PATH:KEY[.KEY...][,...]`` (e.g. the shipped controller's
+development runs, ``bench/results/tracker_guard.json:development_entry_only.seed1``).
+
+Runs are paired by plant, scenario (or stress condition), seed and controller (a variant's
+runs are the DL-MPC's); the figure is each run's ``oracle_ratio`` (mean O over its plant's
+envelope) unless ``--metric`` names another. Prints the mean of each side, the mean
+difference (after minus before) with a bootstrap 90 % interval over the paired runs
+(seeded, so the same records give the same interval), and how many runs moved by more than
+``--by`` either way; runs that are in only one record are counted and left out. With
+``--split``, the same per drift (a stress condition's part before its ``-``) and per plant.
 
 Usage::
 
     python bench/paired.py BEFORE/metrics.json AFTER/metrics.json [--controller dlmpc]
         [--metric oracle_ratio] [--by 0.005]
+    python bench/paired.py bench/results/tracker_guard.json:development_entry_only.seed1 \
+        bench/results/turn_step.json --after-variant "turn step 0.1" --split
 """
 
 from __future__ import annotations
@@ -25,18 +33,38 @@ import numpy as np
 RESAMPLES = 10_000
 
 
-def runs(path: Path, controller: str | None, metric: str) -> dict[tuple, float]:
+def load_record(spec: str) -> list[dict]:
+    """The runs of the record at ``PATH``, or of its sections ``PATH:KEY[.KEY...][,...]``
+    (several sections: their runs together)."""
+    path, _, sections = spec.partition(':') if not Path(spec).exists() else (spec, '', '')
+    whole = json.loads(Path(path).read_text())
+    out = []
+    for section in sections.split(',') if sections else ['']:
+        record = whole
+        for key in filter(None, section.split('.')):
+            record = record[key]
+        out += record['runs'] if isinstance(record, dict) else record
+    return out
+
+
+def runs(record: list[dict], controller: str | None, metric: str,
+         variant: str | None = None) -> dict[tuple, float]:
     """``(plant, stress condition or scenario, seed, controller) -> metric`` of a record's
-    runs."""
-    record = json.loads(path.read_text())
+    runs (of ``variant`` only, where given, in a ``dlmpc_variants.py`` record)."""
     out = {}
-    for run in record['runs'] if isinstance(record, dict) else record:
-        if controller is not None and run['controller'] != controller:
+    for run in record:
+        if 'variant' in run:  # dlmpc_variants.py: the DL-MPC's runs, the figures at top level
+            if variant is not None and run['variant'] != variant:
+                continue
+            plant, who, value = str(run['plant']), 'dlmpc', run.get(metric)
+            plant = f'family-{plant}' if plant.isdigit() else plant
+        else:
+            plant, who, value = run['plant'], run['controller'], run['metrics'].get(metric)
+        if controller is not None and who != controller:
             continue
-        value = run['metrics'].get(metric)
         if value is not None:
-            out[(run['plant'], run.get('condition') or run['scenario'], int(run['seed']),
-                 run['controller'])] = float(value)
+            out[(plant, run.get('condition') or run['scenario'], int(run['seed']), who)] = \
+                float(value)
     return out
 
 
@@ -59,26 +87,44 @@ def paired(before: dict[tuple, float], after: dict[tuple, float],
             'only_after': len(set(after) - set(before))}
 
 
+def line(result: dict, by: float) -> str:
+    """One summary of :func:`paired`'s result."""
+    diff = result['diff']
+    return (f"{result['runs']} paired runs: before {result['before']:.4f}, after "
+            f"{result['after']:.4f}, difference {result['difference']:+.4f} (90 % interval "
+            f"{result['low']:+.4f} to {result['high']:+.4f}); {result['identical']} "
+            f"identical, {int(np.sum(diff > by))} better and {int(np.sum(diff < -by))} worse "
+            f"by more than {by}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('before', type=Path)
-    parser.add_argument('after', type=Path)
+    parser.add_argument('before', help='PATH or PATH:KEY[.KEY...]')
+    parser.add_argument('after', help='PATH or PATH:KEY[.KEY...]')
     parser.add_argument('--controller', default='dlmpc', help="'all': every controller")
+    parser.add_argument('--before-variant', help='of a dlmpc_variants.py record')
+    parser.add_argument('--after-variant', help='of a dlmpc_variants.py record')
     parser.add_argument('--metric', default='oracle_ratio')
     parser.add_argument('--by', type=float, default=0.005,
                         help='a run counts as better or worse beyond this difference')
+    parser.add_argument('--split', action='store_true', help='also per drift and per plant')
     args = parser.parse_args()
     controller = None if args.controller == 'all' else args.controller
-    result = paired(runs(args.before, controller, args.metric),
-                    runs(args.after, controller, args.metric))
-    diff = result.pop('diff')
-    print(f"{result['runs']} paired runs ({args.metric}, {args.controller}): before "
-          f"{result['before']:.4f}, after {result['after']:.4f}, difference "
-          f"{result['difference']:+.4f} (90 % interval {result['low']:+.4f} to "
-          f"{result['high']:+.4f}); {result['identical']} identical, "
-          f"{int(np.sum(diff > args.by))} better and {int(np.sum(diff < -args.by))} worse "
-          f"by more than {args.by}; only before {result['only_before']}, only after "
-          f"{result['only_after']}")
+    before = runs(load_record(args.before), controller, args.metric, args.before_variant)
+    after = runs(load_record(args.after), controller, args.metric, args.after_variant)
+    result = paired(before, after)
+    print(f"{args.metric}, {args.controller}: {line(result, args.by)}; only before "
+          f"{result['only_before']}, only after {result['only_after']}")
+    if args.split:
+        for index, name in ((1, 'drift'), (0, 'plant')):
+            groups = sorted({k[index].split('-')[0] if index == 1 else k[index]
+                             for k in set(before) & set(after)})
+            for group in groups:
+                def keep(k, group=group, index=index):
+                    return (k[index].split('-')[0] if index == 1 else k[index]) == group
+                part = paired({k: v for k, v in before.items() if keep(k)},
+                              {k: v for k, v in after.items() if keep(k)})
+                print(f"  {name} {group}: {line(part, args.by)}")
 
 
 if __name__ == '__main__':
