@@ -42,6 +42,8 @@ def load_record(spec: str) -> list[dict]:
     for section in sections.split(',') if sections else ['']:
         record = whole
         for key in filter(None, section.split('.')):
+            if not isinstance(record, dict) or key not in record:
+                raise ValueError(f'{path} has no section {section!r} (at {key!r})')
             record = record[key]
         out += record['runs'] if isinstance(record, dict) else record
     return out
@@ -51,6 +53,9 @@ def runs(record: list[dict], controller: str | None, metric: str,
          variant: str | None = None) -> dict[tuple, float]:
     """``(plant, stress condition or scenario, seed, controller) -> metric`` of a record's
     runs (of ``variant`` only, where given, in a ``dlmpc_variants.py`` record)."""
+    names = {run['variant'] for run in record if 'variant' in run}
+    if variant is None and len(names) > 1:
+        raise ValueError(f'the record holds the variants {sorted(names)}: choose one')
     out = {}
     for run in record:
         if 'variant' in run:  # dlmpc_variants.py: the DL-MPC's runs, the figures at top level
@@ -110,9 +115,12 @@ def main() -> None:
     parser.add_argument('--split', action='store_true', help='also per drift and per plant')
     args = parser.parse_args()
     controller = None if args.controller == 'all' else args.controller
-    before = runs(load_record(args.before), controller, args.metric, args.before_variant)
-    after = runs(load_record(args.after), controller, args.metric, args.after_variant)
-    result = paired(before, after)
+    try:
+        before = runs(load_record(args.before), controller, args.metric, args.before_variant)
+        after = runs(load_record(args.after), controller, args.metric, args.after_variant)
+        result = paired(before, after)
+    except (OSError, ValueError) as error:
+        parser.error(str(error))
     print(f"{args.metric}, {args.controller}: {line(result, args.by)}; only before "
           f"{result['only_before']}, only after {result['only_after']}")
     if args.split:

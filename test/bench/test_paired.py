@@ -41,6 +41,10 @@ def test_a_variants_record_pairs_with_an_evaluate_record_and_a_section_of_anothe
         assert result['runs'] == 2
         assert result['difference'] == pytest.approx(0.01)
         np.testing.assert_allclose(sorted(result['diff']), [-0.01, 0.03])
+    with pytest.raises(ValueError, match=r"variants \['a', 'b'\]: choose one"):
+        paired.runs(paired.load_record(str(tmp_path / 'after.json')), 'dlmpc', 'oracle_ratio')
+    with pytest.raises(ValueError, match="no section 'shipped.seed3'"):
+        paired.load_record(f"{tmp_path / 'nested.json'}:shipped.seed3")
     with pytest.raises(ValueError, match='share no run'):
         paired.paired(b, paired.runs(paired.load_record(str(tmp_path / 'after.json')),
-                                     'esc', 'oracle_ratio'))
+                                     'esc', 'oracle_ratio', 'a'))
