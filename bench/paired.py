@@ -31,6 +31,9 @@ import numpy as np
 
 #: Bootstrap resamples of the mean difference.
 RESAMPLES = 10_000
+#: ``--split``'s groups of a run key ``(plant, condition or scenario, seed, controller)``:
+#: the drift (a stress condition's part before its ``-``) and the plant.
+SPLITS = {'drift': lambda key: key[1].split('-')[0], 'plant': lambda key: key[0]}
 
 
 def load_record(spec: str) -> list[dict]:
@@ -124,14 +127,10 @@ def main() -> None:
     print(f"{args.metric}, {args.controller}: {line(result, args.by)}; only before "
           f"{result['only_before']}, only after {result['only_after']}")
     if args.split:
-        for index, name in ((1, 'drift'), (0, 'plant')):
-            groups = sorted({k[index].split('-')[0] if index == 1 else k[index]
-                             for k in set(before) & set(after)})
-            for group in groups:
-                def keep(k, group=group, index=index):
-                    return (k[index].split('-')[0] if index == 1 else k[index]) == group
-                part = paired({k: v for k, v in before.items() if keep(k)},
-                              {k: v for k, v in after.items() if keep(k)})
+        for name, group_of in SPLITS.items():
+            for group in sorted({group_of(k) for k in set(before) & set(after)}):
+                part = paired({k: v for k, v in before.items() if group_of(k) == group},
+                              {k: v for k, v in after.items() if group_of(k) == group})
                 print(f"  {name} {group}: {line(part, args.by)}")
 
 
