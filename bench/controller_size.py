@@ -11,7 +11,7 @@ Prints, and with ``--out`` writes as JSON:
   (``plugins.py``, ``factory.py``);
 - **per-period path**: the modules a control period of the default strategy runs
   through, from the node's callback to the published command (``PER_PERIOD``, read off
-  the code: the node, its base class, the period's measurement, the supervisor and its
+  the code: the node, its base class, the period's measurement, the supervisor with its
   modes, their parts, the learned models' forward passes), and their lines.
 
 Usage::
@@ -37,7 +37,7 @@ NOT_CONTROL_LAW = {'__init__.py', 'esc.py', 'ga.py', 'bo.py', 'drl.py', 'observa
 #: command (the paper's loops add ``control/planner.py``, ``learning/features.py`` and
 #: ``learning/mprnn.py``).
 PER_PERIOD = ('nodes/mpc_controller_node.py', 'ros/controller_base.py',
-              'control/period_measurement.py', 'control/dlmpc.py', 'control/modes.py',
+              'control/period_measurement.py', 'control/dlmpc.py',
               'control/acquisition.py', 'control/tracking.py', 'control/branch_turn.py',
               'control/rotation_planner.py', 'control/step.py', 'control/limits.py',
               'learning/kmap.py', 'learning/response.py')

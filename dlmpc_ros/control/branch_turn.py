@@ -74,7 +74,6 @@ class BranchTurn:
         self.made = 0            # turns kept
         self.abandoned = 0       # turns given up because O fell (pulse going)
         self.rejected = 0        # turns taken back because the other branch was no better
-        self.blocked = 0         # turns the servo limits did not allow
         self.wait = 0            # periods before the next turn may start
         self._path: list[np.ndarray] = []    # commands still to send
         self._issued: list[np.ndarray] = []  # commands of this turn sent so far
@@ -123,7 +122,6 @@ class BranchTurn:
                 self._before = float(objective)
                 self._phase = TurnPhase.GO
                 return True
-        self.blocked += 1
         self.wait = TURN_COOLDOWN
         return False
 

@@ -2,7 +2,9 @@
 
 Each control period it takes the period's measurement ``(E, M, alpha[4])``
 (:mod:`~dlmpc_ros.control.period_measurement`) and the VAE's K surrogate for it, asks its
-modes (:mod:`~dlmpc_ros.control.modes`) in priority order, and the first that decides
+modes in priority order (one object per way of choosing the angles, each with one verb:
+``decide(period)`` returns a :class:`Decision` or None to pass; the modes after the one
+that decides ``stand_down``, dropping what they had under way), and the first that decides
 sets the next angles (within the servo limits):
 
 1. ``acquire``: while O says the laser is off its pulse, scan for a lock
@@ -20,6 +22,9 @@ sets the next angles (within the servo limits):
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 import torch
@@ -27,20 +32,168 @@ import torch
 from dlmpc_ros.control.acquisition import (CURVE_POINTS, SCAN_POINTS, AcquisitionConfig,
                                            LockSupervisor, MapScan)
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
+from dlmpc_ros.control.planner import PlanProblem, PredictionMonitor, solve_plan
 from dlmpc_ros.control.rotation_planner import RotationPlanner
-from dlmpc_ros.control.modes import (AcquireMode, Decision, HoldMode, InnerLoop, Mode, Period,
-                                     TrackMode)
-from dlmpc_ros.control.planner import OuterLoop, PredictionMonitor
 from dlmpc_ros.control.step import ControlStep, implausible
 from dlmpc_ros.control.tracking import CurveScan, CurveTracker
 from dlmpc_ros.learning.kmap import KMap
 from dlmpc_ros.learning.mprnn import MPRNN
 from dlmpc_ros.learning.response import ResponseEnsemble
 
-
 #: Largest |surrogate| taken as an estimate (the VAE's latent means lie within a few
 #: units); a larger one, however finite, counts as no estimate.
 SURROGATE_LIMIT = 1e3
+
+
+@dataclass(frozen=True)
+class Period:
+    """What the supervisor knows in one control period."""
+
+    current: np.ndarray
+    """(4,) angles applied during the period [rad]."""
+    objective: float
+    """Measured O = E / M (NaN where M <= 0)."""
+    surrogate: float
+    """The estimator's K surrogate for the measurement (NaN: none)."""
+
+
+@dataclass(frozen=True)
+class Decision:
+    """A mode's choice for the next period (the supervisor applies the servo limits)."""
+
+    angles: np.ndarray
+    """(4,) wanted angles [rad]."""
+    mode: str
+    """Name of the mode that decided."""
+    surrogate: float | None = None
+    """The estimate to report (None: the period's surrogate)."""
+    predicted_objective: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """(N,) predicted O over the horizon (the outer loop's plans only)."""
+    iterations: int = 0
+    """Plan iterations (the outer loop's plans only)."""
+    predicted_next: torch.Tensor | None = None
+    """(2,) normalized state the plan predicts for the end of the next period."""
+    travel: bool = False
+    """The angles only move the servos on toward a goal (no measurement needed there)."""
+
+
+class Mode(Protocol):
+    """One way of choosing the angles."""
+
+    name: str
+
+    def decide(self, period: Period) -> Decision | None:
+        """The angles for the next period, or None to pass to the next mode."""
+
+    def stand_down(self) -> None:
+        """A mode before this one acted: drop what was under way."""
+
+
+class AcquireMode:
+    """Scan for a pulse while unlocked; the tracker (if any) enters where the scan locks."""
+
+    name = 'acquire'
+
+    def __init__(self, supervisor: LockSupervisor, tracker: CurveTracker | None = None) -> None:
+        self.supervisor = supervisor
+        self.tracker = tracker
+
+    def decide(self, period: Period) -> Decision | None:
+        scan = self.supervisor.step(period.objective, period.current, period.surrogate)
+        if scan is not None:
+            return Decision(scan, self.name, travel=self.supervisor.travelling)
+        point = self.supervisor.locked_at
+        if point is not None and point.branch and self.tracker is not None:
+            self.tracker.enter_at(point.estimate, point.branch, period.objective)
+        return None
+
+    def stand_down(self) -> None:
+        """Nothing to drop: the scan restarts from its own counters."""
+
+
+class TrackMode:
+    """Hold the laser on the tracking curve and follow K along it by the measured O."""
+
+    name = 'track'
+
+    def __init__(self, tracker: CurveTracker) -> None:
+        self.tracker = tracker
+
+    def decide(self, period: Period) -> Decision | None:
+        on_curve = self.tracker.step(period.objective, period.current)
+        if on_curve is None:
+            return None
+        return Decision(on_curve, 'plan' if self.tracker.planned else self.name,
+                        surrogate=self.tracker.estimate)
+
+    def stand_down(self) -> None:
+        self.tracker.interrupt()
+
+
+class OuterLoop:
+    """MP-RNN planning (receding horizon); passes (dropping its plan) while the history is
+    short or the recent error is over ``config.error_threshold`` (then it stays off)."""
+
+    name = 'outer'
+
+    def __init__(self, monitor: PredictionMonitor, config: DLMPCConfig) -> None:
+        self.monitor = monitor
+        self.config = config
+        self.plan: torch.Tensor | None = None             # (N, 4) remaining plan
+
+    def decide(self, period: Period) -> Decision | None:
+        if not self.monitor.full or self.monitor.recent_error > self.config.error_threshold:
+            self.stand_down()
+            return None
+        return self._solve(period)
+
+    def stand_down(self) -> None:
+        self.plan = None
+
+    def _solve(self, period: Period) -> Decision:
+        model = self.monitor.model
+        history = self.monitor.history_batch()                      # (1, N + 2b, 10)
+        if self.plan is None:
+            with torch.no_grad():
+                seed = model(history).u[0]                          # (N, 4) from the map
+        else:
+            seed = torch.cat([self.plan[1:], self.plan[-1:]])       # shift the old plan
+        result = solve_plan(model, PlanProblem(
+            history=history, seed=seed, current=period.current,
+            iterations=self.monitor.iterations, learning_rate=self.config.learning_rate),
+            self.config.limits)
+        self.plan = result.plan
+        return Decision(result.first, self.name, predicted_objective=result.predicted_objective,
+                        iterations=result.iterations, predicted_next=result.predicted_next)
+
+
+class InnerLoop:
+    """The estimator's surrogate through the K-to-angles map (passes without one)."""
+
+    name = 'inner'
+
+    def __init__(self, map_angles: Callable[[float], np.ndarray]) -> None:
+        self.map_angles = map_angles
+
+    def decide(self, period: Period) -> Decision | None:
+        if not np.isfinite(period.surrogate):
+            return None
+        return Decision(self.map_angles(period.surrogate), self.name)
+
+    def stand_down(self) -> None:
+        """Stateless."""
+
+
+class HoldMode:
+    """Keep the angles (the last resort: no surrogate)."""
+
+    name = 'hold'
+
+    def decide(self, period: Period) -> Decision:
+        return Decision(period.current, self.name)
+
+    def stand_down(self) -> None:
+        """Stateless."""
 
 
 class DLMPCController:

@@ -17,10 +17,6 @@ class SurrogateEstimator:
         self.encoder = encoder
         self.window: deque[np.ndarray] = deque(maxlen=encoder.window)
 
-    @property
-    def ready(self) -> bool:
-        return len(self.window) == self.window.maxlen
-
     def update(self, measurement: np.ndarray) -> tuple[float, np.ndarray]:
         """Add a measurement (6,) ``(E, M, alpha[4])``; return ``(surrogate, latent mean)``
         (a window short of w is padded with the oldest)."""

@@ -1,8 +1,8 @@
 """The paper's outer loop (section 3D): receding-horizon plans of the MP-RNN.
 
 :func:`solve_plan` runs gradient ascent of the MP-RNN's predicted objective over N future
-angle sets (a :class:`PlanProblem` in, a :class:`PlanResult` out); :class:`OuterLoop` is
-the supervisor's ``outer`` mode that plans each period while the
+angle sets (a :class:`PlanProblem` in, a :class:`PlanResult` out); the supervisor's
+``outer`` mode (:class:`~dlmpc_ros.control.dlmpc.OuterLoop`) plans each period while the
 :class:`PredictionMonitor` finds the one-step forecasts accurate. The default strategy,
 which tracks a curve, never plans with it (``bench/results/stress_ablation.md``).
 """
@@ -17,7 +17,6 @@ import torch
 
 from dlmpc_ros.control.dlmpc_config import ERROR_MEMORY, DLMPCConfig
 from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.modes import Decision, Period
 from dlmpc_ros.learning.features import features
 from dlmpc_ros.learning.mprnn import MPRNN
 
@@ -120,40 +119,3 @@ class PredictionMonitor:
     def history_batch(self) -> torch.Tensor:
         """(1, N + 2b, 10) the history as the model's input."""
         return torch.stack(list(self.history))[None]
-
-
-class OuterLoop:
-    """MP-RNN planning (receding horizon); passes (dropping its plan) while the history is
-    short or the recent error is over ``config.error_threshold`` (then it stays off)."""
-
-    name = 'outer'
-
-    def __init__(self, monitor: PredictionMonitor, config: DLMPCConfig) -> None:
-        self.monitor = monitor
-        self.config = config
-        self.plan: torch.Tensor | None = None             # (N, 4) remaining plan
-
-    def decide(self, period: Period) -> Decision | None:
-        if not self.monitor.full or self.monitor.recent_error > self.config.error_threshold:
-            self.stand_down()
-            return None
-        return self._solve(period)
-
-    def stand_down(self) -> None:
-        self.plan = None
-
-    def _solve(self, period: Period) -> Decision:
-        model = self.monitor.model
-        history = self.monitor.history_batch()                      # (1, N + 2b, 10)
-        if self.plan is None:
-            with torch.no_grad():
-                seed = model(history).u[0]                          # (N, 4) from the map
-        else:
-            seed = torch.cat([self.plan[1:], self.plan[-1:]])       # shift the old plan
-        result = solve_plan(model, PlanProblem(
-            history=history, seed=seed, current=period.current,
-            iterations=self.monitor.iterations, learning_rate=self.config.learning_rate),
-            self.config.limits)
-        self.plan = result.plan
-        return Decision(result.first, self.name, predicted_objective=result.predicted_objective,
-                        iterations=result.iterations, predicted_next=result.predicted_next)

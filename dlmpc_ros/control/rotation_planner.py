@@ -116,7 +116,6 @@ class RotationPlanner:
         self.moves = 0
         self.undone = 0
         self._rng = np.random.default_rng(0)
-        self.last_prediction = float('nan')  # predicted change of log O of the last move
         self._pending: tuple[float, float, float] | None = None  # (delta, predicted, log O)
 
     def observe(self, energy: float, kurtosis: float) -> None:
@@ -164,7 +163,6 @@ class RotationPlanner:
                                    cfg.noise_gate * noise * np.sqrt(2 / MEASUREMENTS)):
             return 0.0
         self.moves += 1
-        self.last_prediction = float(mean[best])
         self._pending = (float(deltas[best]), float(mean[best]), log_o)
         self.recent.clear()  # the next plan reads the state after this move
         return float(deltas[best])

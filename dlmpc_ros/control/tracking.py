@@ -167,7 +167,7 @@ class CurveTracker:
         self.branch = 1           # 1: on the curve; -1: on its mirror twin
         self.turner = BranchTurn(self.config.turn_guard, self.limits, self.on_curve)
         self._estimate_before_turn = 0.0
-        self._locked = 0          # consecutive locked periods while not tracking
+        #: O of the consecutive locked periods while not tracking (the latest few)
         self._recent: deque[float] = deque(maxlen=self.config.entry_patience)
         self._entry_objective = 0.0
         self._wait = 0            # cooldown periods left
@@ -234,7 +234,6 @@ class CurveTracker:
         if self.active:
             self._forget_unjudged_turn()
             self._leave(failed=self._age <= self.config.settle + self.config.guard_periods)
-        self._locked = 0
         self._recent.clear()
 
     def step(self, objective: float, current: np.ndarray | None = None) -> np.ndarray | None:
@@ -327,12 +326,11 @@ class CurveTracker:
         if self._wait > 0:
             self._wait -= 1
             return None
-        self._locked = self._locked + 1 if locked else 0
         if locked:
             self._recent.append(float(objective))
         else:
             self._recent.clear()
-        if self._locked < self.config.entry_patience:
+        if len(self._recent) < self.config.entry_patience:
             return None
         self.active = True
         self._entry_objective = float(np.median(self._recent))
@@ -376,7 +374,6 @@ class CurveTracker:
     def _leave(self, failed: bool) -> None:
         """Hand back and wait a cooldown (doubled, up to 64 x, after a failed entry)."""
         self.active = False
-        self._locked = 0
         self._recent.clear()
         self._wait = self._cooldown
         if failed:

@@ -12,7 +12,7 @@ from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.rotation_planner import PlannerConfig
 from dlmpc_ros.control.tracking import TrackingConfig
 from dlmpc_ros.nodes import mpc_controller_node as node
-from dlmpc_ros.ros import controller_base as base
+from dlmpc_ros.ros import controller_params as base
 
 #: Settings whose node parameter is not ``prefix + name``.
 RENAMED = {(AcquisitionConfig, 'patience'): 'acquire_patience',
