@@ -32,7 +32,7 @@ import torch
 from dlmpc_ros.control.acquisition import (CURVE_POINTS, SCAN_POINTS, AcquisitionConfig,
                                            LockSupervisor, MapScan)
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
-from dlmpc_ros.control.planner import PlanProblem, PredictionMonitor, solve_plan
+from dlmpc_ros.control.planner import PredictionMonitor, solve_plan
 from dlmpc_ros.control.rotation_planner import RotationPlanner
 from dlmpc_ros.control.step import ControlStep, implausible
 from dlmpc_ros.control.tracking import CurveScan, CurveTracker
@@ -158,10 +158,8 @@ class OuterLoop:
                 seed = model(history).u[0]                          # (N, 4) from the map
         else:
             seed = torch.cat([self.plan[1:], self.plan[-1:]])       # shift the old plan
-        result = solve_plan(model, PlanProblem(
-            history=history, seed=seed, current=period.current,
-            iterations=self.monitor.iterations, learning_rate=self.config.learning_rate),
-            self.config.limits)
+        result = solve_plan(model, history, seed, period.current, self.monitor.iterations,
+                            self.config.learning_rate, self.config.limits)
         self.plan = result.plan
         return Decision(result.first, self.name, predicted_objective=result.predicted_objective,
                         iterations=result.iterations, predicted_next=result.predicted_next)

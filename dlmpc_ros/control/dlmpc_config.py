@@ -41,12 +41,6 @@ class DLMPCConfig:
     planner: PlannerConfig | None = field(default_factory=PlannerConfig)
     """Planned curve turns (None: off; also off without tracking or the predictor)."""
 
-    @classmethod
-    def paper(cls, **settings) -> DLMPCConfig:
-        """The paper's DL-MPC (section 3D) only: inner and outer loop; no acquisition scan,
-        curve tracking or planned turns."""
-        return cls(acquisition=None, tracking=None, planner=None, **settings)
-
     def __post_init__(self) -> None:
         in_range(self)
         if not self.min_iterations <= self.start_iterations <= self.max_iterations:

@@ -113,9 +113,11 @@ def dlmpc(models_dir: Path, limits: AngleLimits, *,
 
 
 def dlmpc_paper(models_dir: Path, limits: AngleLimits) -> DLMPCController:
-    """The paper's DL-MPC alone (:meth:`DLMPCConfig.paper`: VAE + map inner loop, MP-RNN
-    outer loop) within ``limits``: the mpc_controller node's ``strategy:=paper``."""
-    return load_dlmpc(models_dir, DLMPCConfig.paper(limits=limits))
+    """The paper's DL-MPC alone (section 3D: VAE + map inner loop, MP-RNN outer loop; no
+    lock scan, curve tracking or planned turns) within ``limits``: the mpc_controller
+    node's ``strategy:=paper``."""
+    return load_dlmpc(models_dir, DLMPCConfig(limits=limits, acquisition=None,
+                                              tracking=None, planner=None))
 
 
 def esc(models_dir: Path, limits: AngleLimits) -> ESCController:

@@ -16,6 +16,8 @@ from collections import deque
 
 import numpy as np
 
+from dlmpc_ros.core import checks
+
 #: Round trips a measurement averages by default (1: the decision's own only).
 MEASUREMENT_ROUND_TRIPS = 10
 #: Default largest |reported angle - command| [rad] of a settled state (5x a 0.05 deg encoder).
@@ -32,12 +34,6 @@ def period_measurement(states: np.ndarray) -> np.ndarray:
     return np.array([*states[:, :2].mean(axis=0), *np.median(states[:, 2:], axis=0)])
 
 
-def _count(name: str, value: object) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f'{name} must be an integer >= 1, got {value!r}')
-    return value
-
-
 class PeriodMeasurement:
     """Collects the round trips' states and says when a decision is due, with its measurement.
 
@@ -48,11 +44,10 @@ class PeriodMeasurement:
 
     def __init__(self, period: int, round_trips: int = MEASUREMENT_ROUND_TRIPS,
                  tolerance: float = SETTLE_TOLERANCE, timeout: int = SETTLE_TIMEOUT) -> None:
-        self.period = _count('period', period)
-        self.round_trips = _count('round_trips', round_trips)
-        self.timeout = _count('timeout', timeout)
-        if not (isinstance(tolerance, (int, float)) and 0 <= tolerance < np.inf):
-            raise ValueError(f'tolerance must be a finite number >= 0, got {tolerance!r}')
+        self.period, self.round_trips, self.timeout = period, round_trips, timeout
+        self.tolerance = tolerance
+        checks.counts(self, 'period', 'round_trips', 'timeout')
+        checks.non_negative(self, 'tolerance')
         self.tolerance = float(tolerance)
         self._latest: deque[tuple[int, np.ndarray]] = deque(maxlen=round_trips)
         self._last = 0                        # round trip of the last decision

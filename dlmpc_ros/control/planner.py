@@ -1,10 +1,10 @@
 """The paper's outer loop (section 3D): receding-horizon plans of the MP-RNN.
 
 :func:`solve_plan` runs gradient ascent of the MP-RNN's predicted objective over N future
-angle sets (a :class:`PlanProblem` in, a :class:`PlanResult` out); the supervisor's
-``outer`` mode (:class:`~dlmpc_ros.control.dlmpc.OuterLoop`) plans each period while the
-:class:`PredictionMonitor` finds the one-step forecasts accurate. The default strategy,
-which tracks a curve, never plans with it (``bench/results/stress_ablation.md``).
+angle sets; the supervisor's ``outer`` mode (:class:`~dlmpc_ros.control.dlmpc.OuterLoop`)
+plans each period while the :class:`PredictionMonitor` finds the one-step forecasts
+accurate; the default strategy, which tracks a curve, never plans with it
+(``bench/results/stress_ablation.md``).
 """
 
 from __future__ import annotations
@@ -19,22 +19,6 @@ from dlmpc_ros.control.dlmpc_config import ERROR_MEMORY, DLMPCConfig
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.learning.features import features
 from dlmpc_ros.learning.mprnn import MPRNN
-
-
-@dataclass(frozen=True)
-class PlanProblem:
-    """One receding-horizon plan: maximize the summed predicted O over the horizon."""
-
-    history: torch.Tensor
-    """(1, N + 2b, 10) features of the recent control periods, the last one now."""
-    seed: torch.Tensor
-    """(N, 4) first guess of the plan [rad] (the previous plan shifted, or the map's)."""
-    current: np.ndarray
-    """(4,) angles applied now [rad]."""
-    iterations: int
-    """Adam steps of the ascent."""
-    learning_rate: float
-    """Adam step size [rad]."""
 
 
 @dataclass(frozen=True)
@@ -53,24 +37,28 @@ class PlanResult:
     """Adam steps taken."""
 
 
-def solve_plan(model: MPRNN, problem: PlanProblem, limits: AngleLimits) -> PlanResult:
-    """Improve ``problem.seed`` by gradient ascent on ``model``'s summed predicted O (weights
-    unchanged: it should have ``requires_grad`` off), then cut the first step to what the
-    servos reach (``limits``) and predict the plan once more with it."""
-    plan = problem.seed.clone().requires_grad_(True)
-    optimizer = torch.optim.Adam([plan], lr=problem.learning_rate)
-    for _ in range(problem.iterations):
+def solve_plan(model: MPRNN, history: torch.Tensor, seed: torch.Tensor, current: np.ndarray,
+               iterations: int, learning_rate: float, limits: AngleLimits) -> PlanResult:
+    """One receding-horizon plan: improve ``seed`` (N, 4) [rad] (the previous plan shifted,
+    or the map's) by ``iterations`` Adam steps of ``learning_rate`` [rad] on ``model``'s
+    summed predicted O after ``history`` (1, N + 2b, 10), the features of the recent
+    periods (weights unchanged: it should have ``requires_grad`` off); then cut the first
+    step to what the servos reach from ``current`` (4,) [rad] (``limits``) and predict the
+    plan once more with it."""
+    plan = seed.clone().requires_grad_(True)
+    optimizer = torch.optim.Adam([plan], lr=learning_rate)
+    for _ in range(iterations):
         optimizer.zero_grad()
-        out = model(problem.history, plan[None])
+        out = model(history, plan[None])
         (-out.objective.sum()).backward()
         optimizer.step()
     plan = plan.detach()
-    plan[0] = torch.as_tensor(limits.apply(problem.current, plan[0].numpy()), dtype=plan.dtype)
+    plan[0] = torch.as_tensor(limits.apply(current, plan[0].numpy()), dtype=plan.dtype)
     with torch.no_grad():
-        out = model(problem.history, plan[None])
+        out = model(history, plan[None])
     return PlanResult(first=plan[0].numpy().copy(), plan=plan,
                       predicted_objective=out.objective[0].numpy(),
-                      predicted_next=out.v[0, 0], iterations=problem.iterations)
+                      predicted_next=out.v[0, 0], iterations=iterations)
 
 
 class PredictionMonitor:

@@ -23,14 +23,13 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 from enum import Enum
-from typing import Protocol
 
 import numpy as np
 
 from dlmpc_ros.control.acquisition import ScanPoint
 from dlmpc_ros.control.branch_turn import ABANDONED, ARRIVED, KEPT, RETURNED, BranchTurn
 from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.rotation_planner import CurveRotation
+from dlmpc_ros.control.rotation_planner import CurveRotation, RotationPlanner
 from dlmpc_ros.core.angles import wrap_angles
 from dlmpc_ros.core.checks import in_range, setting
 from dlmpc_ros.core.symmetry import QUARTER_TURN
@@ -130,18 +129,6 @@ TRACKER_TRANSITIONS = frozenset({
     (TrackerState.TURN, TrackerState.IDLE)})
 
 
-class TurnPlanner(Protocol):
-    """What plans the curve's turns
-    (:class:`~dlmpc_ros.control.rotation_planner.RotationPlanner`)."""
-
-    def plan(self, u: float, theta: float, noise: float = 0.0) -> float:
-        """A further turn [rad] of the rotation ``theta`` at curve point ``u`` (0: hold),
-        ``noise`` the measurement noise read off the run."""
-
-    def retract(self) -> float:
-        """The last turn [rad] if it was not judged yet (0: none), which it then forgets."""
-
-
 class CurveTracker:
     """Per control period: None while the inner loop is in charge, else the angles (4,)
     [rad] on the curve.
@@ -156,7 +143,7 @@ class CurveTracker:
                  config: TrackingConfig | None = None,
                  expected: np.ndarray | None = None,
                  limits: AngleLimits | None = None,
-                 planner: TurnPlanner | None = None) -> None:
+                 planner: RotationPlanner | None = None) -> None:
         self.grid, self.angles, self.expected = check_curve(grid, angles, expected)
         if not threshold > 0:
             raise ValueError(f'lock threshold must be > 0, got {threshold}')
@@ -211,10 +198,6 @@ class CurveTracker:
         """This period's angles: the point at the estimate, with the dither."""
         return self.curve(self.estimate + self._sign * self.config.dither)
 
-    def expected_objective(self, s: float) -> float:
-        """The curve's own steady O at ``s`` on the current branch (needs ``expected``)."""
-        return float(np.interp(self.branch * s, self.grid, self.expected))
-
     def enter_at(self, estimate: float, branch: int, objective: float) -> None:
         """Start tracking now at ``estimate`` on ``branch`` (where the acquisition scan just
         locked, with O = ``objective``), without the entry patience or a cooldown."""
@@ -267,7 +250,7 @@ class CurveTracker:
                 and current is not None:
             self._entry_trial = False
             weak = (self.expected is None or objective < self.config.entry_trial_below
-                    * self.expected_objective(self.estimate))
+                    * np.interp(self.branch * self.estimate, self.grid, self.expected))
             if weak and self.turner.wait == 0 and not self.turner.lost_landing \
                     and self.turner.begin(np.asarray(current, float),
                                           self.branch * self.estimate, self._reference()):
@@ -419,9 +402,8 @@ class CurveTracker:
             (_, before), (sign, middle), (_, after) = self._blocks
             difference = sign * (middle - 0.5 * (before + after))   # O(+) - O(-)
             if abs(difference) > self._deadband() * max(abs(middle), 1e-12):
-                self._step, self._last_move, move = _rprop(
-                    difference, self._step, self._last_move, RPROP_GROW, RPROP_SHRINK,
-                    MIN_STEP, MAX_STEP)
+                self._step, self._last_move, move = _rprop(difference, self._step,
+                                                           self._last_move)
                 self.estimate = float(np.clip(self.estimate + move, self.grid[0],
                                               self.grid[-1]))
         if (self.planner is not None and self._age > cfg.settle
@@ -435,13 +417,13 @@ class CurveTracker:
                 self._blocks.clear()  # O moves with the turn: compare blocks after it
 
 
-def _rprop(slope: float, step: float, last: float, grow: float, shrink: float,
-           low: float, high: float) -> tuple[float, float, float]:
+def _rprop(slope: float, step: float, last: float) -> tuple[float, float, float]:
     """One Rprop move up the sign of ``slope``: ``(new step, its sign, the move)``; the
-    step grows while the sign repeats, shrinks when it flips, within [low, high]."""
+    step grows while the sign repeats, shrinks when it flips, within [MIN_STEP, MAX_STEP]."""
     sign = float(np.sign(slope))
     if last:
-        step = float(np.clip(step * (grow if sign == last else shrink), low, high))
+        step = float(np.clip(step * (RPROP_GROW if sign == last else RPROP_SHRINK),
+                             MIN_STEP, MAX_STEP))
     return step, sign, step * sign
 
 
