@@ -7,6 +7,9 @@ recent best (decaying by ``LEVEL_DECAY`` per period). After ``patience`` unlocke
 (the tracking curve and its twin, :class:`~dlmpc_ros.control.tracking.CurveScan`; without a
 curve, :class:`MapScan`) until O locks, then hands back to the modes, told where
 (:attr:`LockSupervisor.locked_at`).
+Where a point's field has died, the scan seeds it: it turns the half-wave plate on through
+its period at the servos' speed; a strong CW field builds on the way and forms a pulse back
+at the point's setting (an NPR laser started by hand; ``bench/results/scan_sweep.md``).
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import numpy as np
 from dlmpc_ros.control.limits import AngleLimits, into_range
 from dlmpc_ros.core.angles import wrap_angles
 from dlmpc_ros.core.checks import in_range, setting
+from dlmpc_ros.core.symmetry import HALF_WAVE, QUARTER_TURN
 
 
 #: Surrogate values the map scan visits (equal-probability quantiles of the VAE prior).
@@ -40,6 +44,9 @@ LEVEL_WINDOW = 3
 TURN_ROOM = 2.0
 #: Curve parameters u (K units) the curve scan visits, each with its mirror twin, in order.
 CURVE_POINTS = (-0.25, -0.3, -0.2, -0.15, -0.1, -0.05, 0.0)
+#: A point's field is dead under this fraction of the latest locked period's E (dead points
+#: read 0.07-0.18 of it in development traces, others >= 0.5; ``scan_sweep.md``).
+WEAK_FIELD = 0.25
 
 
 @dataclass(frozen=True)
@@ -130,6 +137,10 @@ class LockSupervisor:
         self._order: list[ScanPoint] = []
         self._target: ScanPoint | None = None
         self._dwell = self._travel = 0
+        self._energy = float('nan')  # this period's measured E
+        self.pulse_energy = float('nan')  # E of the latest locked period
+        self._sweep_from: np.ndarray | None = None  # where the seeding sweep started
+        self._swept = 0.0  # how far it has turned the half-wave plate [rad]
         #: Whether the latest command only moves the servos on (no measurement needed).
         self.travelling = False
 
@@ -138,7 +149,11 @@ class LockSupervisor:
         threshold = max(self.threshold, RELOCK_FRACTION * self.level)
         return bool(np.isfinite(objective) and objective >= threshold)
 
-    def step(self, objective: float, current: np.ndarray, surrogate: float) -> np.ndarray | None:
+    def step(self, objective: float, current: np.ndarray, surrogate: float,
+             energy: float = float('nan')) -> np.ndarray | None:
+        """Measured O, the angles (4,) [rad], the surrogate and the measured E (NaN: none)
+        -> the scan's angles for the next period, or None."""
+        self._energy = float(energy)
         self.locked_at = None
         self.travelling = False
         if np.isfinite(objective):
@@ -146,6 +161,8 @@ class LockSupervisor:
             self.level = max(float(np.median(self._latest)), self.level * LEVEL_DECAY)
         locked = self.locked(objective)
         if locked:
+            if np.isfinite(energy):
+                self.pulse_energy = float(energy)
             self.was_locked = True
             self.source.note_locked(surrogate)
             self.locked_at = self._target
@@ -178,18 +195,33 @@ class LockSupervisor:
         gap = wrap_angles(current - self._target.angles)  # pi-periodic
         return float(np.max(np.abs(gap))) <= ARRIVE_TOLERANCE or self._travel >= TRAVEL_PERIODS
 
+    def _swept_angles(self) -> np.ndarray:
+        """The seeding sweep's command (4,) [rad]: its start, the half-wave plate turned on."""
+        angles = self._sweep_from.copy()
+        angles[HALF_WAVE] += self._swept
+        return angles
+
     def _scan(self, current: np.ndarray) -> np.ndarray:
         if self._target is not None:
             self._travel += 1
-            if not self._arrived(current):
+            if self._sweep_from is None and not self._arrived(current):
                 self.travelling = True
                 return self._toward(current)
+            if self._dwell >= 1 and self._sweep_from is None \
+                    and self._energy < WEAK_FIELD * self.pulse_energy:  # the field died
+                self._sweep_from, self._dwell = current.copy(), 0
+            if self._sweep_from is not None and self._swept < QUARTER_TURN:
+                step = (self.limits or AngleLimits()).max_step
+                self._swept = min(self._swept + step, QUARTER_TURN)
+                return self._swept_angles()
             self._dwell += 1
             if self._dwell < self.config.dwell_periods:
-                return self._toward(current)
+                return self._toward(current) if self._sweep_from is None \
+                    else self._swept_angles()
         if not self._order:
             self._order = self.source.pass_order(current)
         self._target = self._order.pop(0)
+        self._sweep_from, self._swept = None, 0.0
         self._dwell = self._travel = 0
         self.travelling = not self._arrived(current)
         return self._toward(current)

@@ -55,6 +55,8 @@ class Period:
     """Measured O = E / M (NaN where M <= 0)."""
     surrogate: float
     """The estimator's K surrogate for the measurement (NaN: none)."""
+    energy: float
+    """Measured E."""
 
 
 @dataclass(frozen=True)
@@ -99,12 +101,14 @@ class AcquireMode:
         self.tracker = tracker
 
     def decide(self, period: Period) -> Decision | None:
-        scan = self.supervisor.step(period.objective, period.current, period.surrogate)
+        scan = self.supervisor.step(period.objective, period.current, period.surrogate,
+                                    period.energy)
         if scan is not None:
             return Decision(scan, self.name, travel=self.supervisor.travelling)
         point = self.supervisor.locked_at
         if point is not None and point.branch and self.tracker is not None:
-            self.tracker.enter_at(point.estimate, point.branch, period.objective)
+            self.tracker.enter_at(point.estimate, point.branch, period.objective,
+                                  period.current)
         return None
 
     def stand_down(self) -> None:
@@ -297,7 +301,8 @@ class DLMPCController:
         period = Period(
             current=measurement[2:6],
             objective=measurement[0] / measurement[1] if measurement[1] > 0 else float('nan'),
-            surrogate=float('nan') if surrogate is None else float(surrogate))
+            surrogate=float('nan') if surrogate is None else float(surrogate),
+            energy=float(measurement[0]))
         decision = self._decide(period)
         angles = self.config.limits.apply(period.current, decision.angles)
         if self.monitor is not None:

@@ -32,7 +32,7 @@ from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.rotation_planner import CurveRotation, RotationPlanner
 from dlmpc_ros.core.angles import wrap_angles
 from dlmpc_ros.core.checks import in_range, setting
-from dlmpc_ros.core.symmetry import QUARTER_TURN
+from dlmpc_ros.core.symmetry import HALF_WAVE, QUARTER_TURN
 from dlmpc_ros.learning.curve import check_curve
 
 
@@ -169,6 +169,8 @@ class CurveTracker:
         self.planner = planner
         self._turn_at = 0.0  # the curve point u of the latest planned turn
         self.planned = 0.0
+        #: 0, or a quarter turn where the scan locked with the half-wave plate turned so
+        self._half_wave_frame = 0.0
         self._recentre()          # estimate at start; age, guard, dither and steps reset
 
     @property
@@ -185,6 +187,7 @@ class CurveTracker:
         tracker is on: the curve, or its twin ``c(-s) + pi/2``, turned by the learned
         rotation."""
         on_curve = self.on_curve(self.branch * s)
+        on_curve[HALF_WAVE] += self._half_wave_frame
         return on_curve if self.branch == 1 else on_curve + QUARTER_TURN
 
     def on_curve(self, u: float) -> np.ndarray:
@@ -198,9 +201,13 @@ class CurveTracker:
         """This period's angles: the point at the estimate, with the dither."""
         return self.curve(self.estimate + self._sign * self.config.dither)
 
-    def enter_at(self, estimate: float, branch: int, objective: float) -> None:
+    def enter_at(self, estimate: float, branch: int, objective: float,
+                 current: np.ndarray | None = None) -> None:
         """Start tracking now at ``estimate`` on ``branch`` (where the acquisition scan just
-        locked, with O = ``objective``), without the entry patience or a cooldown."""
+        locked, with O = ``objective``, the servos at ``current`` (4,) [rad]), without the
+        entry patience or a cooldown. A scan may lock with the half-wave plate a quarter
+        turn from the curve's (the same setting, :data:`HALF_WAVE`): the tracker then keeps
+        that frame rather than turn the plate back through its period."""
         if branch not in (1, -1):
             raise ValueError(f'branch must be 1 or -1, got {branch}')
         self.active, self._wait = True, 0
@@ -210,6 +217,10 @@ class CurveTracker:
         self.estimate = float(np.clip(estimate, self.grid[0], self.grid[-1]))
         self._entry_objective = float(objective) if np.isfinite(objective) else 0.0
         self._entry_trial = True
+        self._half_wave_frame = 0.0
+        if current is not None:
+            gap = float(current[HALF_WAVE]) - self.curve(self.estimate)[HALF_WAVE]
+            self._half_wave_frame = QUARTER_TURN * float(abs(wrap_angles(gap)) > np.pi / 4)
 
     def interrupt(self) -> None:
         """Something else took over (the acquisition scan): stop and wait a cooldown."""

@@ -27,6 +27,9 @@ ANGLE_SHIFT = np.array([math.pi / 2, math.pi / 2, 0.0, math.pi / 2])
 #: isotropic, turning all four together by any angle maps steady states onto steady
 #: states: a laser keeps its pulse while its servos turn from one twin to the other.
 QUARTER_TURN = math.pi / 2
+#: Index of the half-wave plate's angle alpha3 in an angle set: the plate turned by a quarter
+#: turn only flips the field's sign, so alpha3 and alpha3 + pi/2 are one setting.
+HALF_WAVE = 2
 
 
 def mirror_angles(angles: np.ndarray) -> np.ndarray:

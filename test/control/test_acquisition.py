@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 import torch
 
-from dlmpc_ros.control.acquisition import (TRAVEL_PERIODS, AcquisitionConfig, LockSupervisor,
-                                           MapScan, ScanPoint, scan_surrogates)
+from dlmpc_ros.control.acquisition import (TRAVEL_PERIODS, WEAK_FIELD, AcquisitionConfig,
+                                           LockSupervisor, MapScan, ScanPoint,
+                                           scan_surrogates)
 from dlmpc_ros.control.dlmpc import DLMPCController
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.limits import AngleLimits
@@ -182,3 +183,38 @@ def test_the_scan_keeps_turn_room_from_the_ends_of_the_servo_range():
     sup = LockSupervisor(0.1, _Pairs(point), AcquisitionConfig(patience=1), limits)
     sup.step(0.01, near_middle, 0.0)
     np.testing.assert_allclose(sup.step(0.01, near_middle, 0.0), point.angles)
+
+
+def _scan_to(sup: LockSupervisor, limits: AngleLimits, here: np.ndarray, energy: float,
+             periods: int) -> list[np.ndarray]:
+    """The servos' angles over ``periods`` unlocked periods at a measured E of ``energy``."""
+    path = []
+    for _ in range(periods):
+        here = limits.apply(here, sup.step(0.01, here, 0.0, energy))
+        path.append(here)
+    return path
+
+
+def test_the_scan_seeds_a_dead_point_by_turning_the_half_wave_plate_through_its_period():
+    """Where the field has died (E under WEAK_FIELD of the last locked period's), the scan
+    turns alpha3 forward by the servo step per period through a quarter turn (the same
+    setting again) and dwells there; a live point, or a laser never locked, gets none."""
+    limits = AngleLimits(max_step=0.25)
+    point = ScanPoint(np.array([0.1, -0.2, 0.3, 0.4]))
+
+    def supervisor(locked_energy: float) -> LockSupervisor:
+        sup = LockSupervisor(0.1, _Pairs(point),
+                             AcquisitionConfig(patience=1, relock_patience=1), limits)
+        sup.step(0.2, point.angles, 0.0, locked_energy)    # locked
+        sup.step(0.01, point.angles, 0.0, 0.1)             # patience
+        return sup
+
+    # the point, a period there, 7 periods of sweep, then the dwell at its end
+    dead = _scan_to(supervisor(3.0), limits, point.angles, 3.0 * WEAK_FIELD * 0.5, 11)
+    turned = np.array([a[2] - 0.3 for a in dead])
+    np.testing.assert_allclose([a[[0, 1, 3]] for a in dead], [point.angles[[0, 1, 3]]] * 11)
+    np.testing.assert_allclose(turned, [0, 0, 0.25, 0.5, 0.75, 1, 1.25, 1.5] + [np.pi / 2] * 3)
+    live = _scan_to(supervisor(3.0), limits, point.angles, 3.0 * WEAK_FIELD * 2, 11)
+    never = _scan_to(supervisor(float('nan')), limits, point.angles, 0.01, 11)
+    for path in (live, never):
+        np.testing.assert_allclose(path, [point.angles] * 11)

@@ -457,3 +457,18 @@ def test_dlmpc_tracks_once_locked_and_reports_its_estimate():
     assert DLMPCController(kmap, mprnn, cfg, target_objective=0.2).tracker is None
     off = DLMPCConfig(tracking=None)
     assert DLMPCController(kmap, mprnn, off, 0.2, (GRID, ANGLES, GRID)).tracker is None
+
+
+def test_an_entry_keeps_the_half_wave_plate_in_the_frame_the_scan_locked_in():
+    """alpha3 and alpha3 + pi/2 are one setting: entered with the plate a quarter turn from
+    the curve's (where a seeding sweep ends), the tracker commands the curve in that frame
+    instead of turning the plate back through its period; in the curve's own frame, as is."""
+    for offset, frame in ((0.0, 0.0), (QUARTER_TURN, QUARTER_TURN),
+                          (-QUARTER_TURN + 0.1, QUARTER_TURN), (np.pi, 0.0)):
+        tracker = CurveTracker(GRID, ANGLES, threshold=0.1)
+        on_curve = tracker.curve(-0.1)
+        here = on_curve + np.array([0.0, 0.0, offset, 0.0])
+        tracker.enter_at(-0.1, 1, 0.2, here)
+        command = tracker.step(0.2, here)   # the dither moves alpha3 by 0.03
+        assert abs(command[2] - on_curve[2] - frame) <= 0.03 + 1e-12, offset
+        np.testing.assert_allclose(command[[1, 3]], on_curve[[1, 3]])
