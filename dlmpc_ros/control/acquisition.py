@@ -137,7 +137,6 @@ class LockSupervisor:
         self._order: list[ScanPoint] = []
         self._target: ScanPoint | None = None
         self._dwell = self._travel = 0
-        self._energy = float('nan')  # this period's measured E
         self.pulse_energy = float('nan')  # E of the latest locked period
         self._sweep_from: np.ndarray | None = None  # where the seeding sweep started
         self._swept = 0.0  # how far it has turned the half-wave plate [rad]
@@ -153,7 +152,6 @@ class LockSupervisor:
              energy: float = float('nan')) -> np.ndarray | None:
         """Measured O, the angles (4,) [rad], the surrogate and the measured E (NaN: none)
         -> the scan's angles for the next period, or None."""
-        self._energy = float(energy)
         self.locked_at = None
         self.travelling = False
         if np.isfinite(objective):
@@ -173,7 +171,7 @@ class LockSupervisor:
         cfg = self.config
         if self.unlocked <= (cfg.relock_patience if self.was_locked else cfg.patience):
             return None
-        return self._scan(np.asarray(current, float))
+        return self._scan(np.asarray(current, float), float(energy))
 
     def _toward(self, current: np.ndarray) -> np.ndarray:
         """The command (4,) [rad] toward the scan's point: the point, or where its nearest
@@ -201,14 +199,14 @@ class LockSupervisor:
         angles[HALF_WAVE] += self._swept
         return angles
 
-    def _scan(self, current: np.ndarray) -> np.ndarray:
+    def _scan(self, current: np.ndarray, energy: float) -> np.ndarray:
         if self._target is not None:
             self._travel += 1
             if self._sweep_from is None and not self._arrived(current):
                 self.travelling = True
                 return self._toward(current)
             if self._dwell >= 1 and self._sweep_from is None \
-                    and self._energy < WEAK_FIELD * self.pulse_energy:  # the field died
+                    and energy < WEAK_FIELD * self.pulse_energy:  # the field died
                 self._sweep_from, self._dwell = current.copy(), 0
             if self._sweep_from is not None and self._swept < QUARTER_TURN:
                 step = (self.limits or AngleLimits()).max_step
