@@ -24,7 +24,6 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Protocol
 
 import numpy as np
 import torch
@@ -79,19 +78,20 @@ class Decision:
     """The angles only move the servos on toward a goal (no measurement needed there)."""
 
 
-class Mode(Protocol):
+class Mode:
     """One way of choosing the angles."""
 
-    name: str
+    name = ''
 
     def decide(self, period: Period) -> Decision | None:
         """The angles for the next period, or None to pass to the next mode."""
+        raise NotImplementedError
 
     def stand_down(self) -> None:
-        """A mode before this one acted: drop what was under way."""
+        """A mode before this one acted: drop what was under way (by default, nothing)."""
 
 
-class AcquireMode:
+class AcquireMode(Mode):
     """Scan for a pulse while unlocked; the tracker (if any) enters where the scan locks."""
 
     name = 'acquire'
@@ -111,11 +111,8 @@ class AcquireMode:
                                   period.current)
         return None
 
-    def stand_down(self) -> None:
-        """Nothing to drop: the scan restarts from its own counters."""
 
-
-class TrackMode:
+class TrackMode(Mode):
     """Hold the laser on the tracking curve and follow K along it by the measured O."""
 
     name = 'track'
@@ -134,7 +131,7 @@ class TrackMode:
         self.tracker.interrupt()
 
 
-class OuterLoop:
+class OuterLoop(Mode):
     """MP-RNN planning (receding horizon); passes (dropping its plan) while the history is
     short or the recent error is over ``config.error_threshold`` (then it stays off)."""
 
@@ -169,7 +166,7 @@ class OuterLoop:
                         iterations=result.iterations, predicted_next=result.predicted_next)
 
 
-class InnerLoop:
+class InnerLoop(Mode):
     """The estimator's surrogate through the K-to-angles map (passes without one)."""
 
     name = 'inner'
@@ -182,20 +179,14 @@ class InnerLoop:
             return None
         return Decision(self.map_angles(period.surrogate), self.name)
 
-    def stand_down(self) -> None:
-        """Stateless."""
 
-
-class HoldMode:
+class HoldMode(Mode):
     """Keep the angles (the last resort: no surrogate)."""
 
     name = 'hold'
 
     def decide(self, period: Period) -> Decision:
         return Decision(period.current, self.name)
-
-    def stand_down(self) -> None:
-        """Stateless."""
 
 
 class DLMPCController:

@@ -35,7 +35,7 @@ if TYPE_CHECKING:  # torch-based (and scikit-learn-based): imported where they a
     from dlmpc_ros.control.bo import BOController
     from dlmpc_ros.control.dlmpc import DLMPCController
     from dlmpc_ros.control.drl import DRLController
-    from dlmpc_ros.control.estimator import SurrogateEstimator
+    from dlmpc_ros.learning.estimator import SurrogateEstimator
 
 CONTROLLERS = ('dlmpc', 'esc', 'ga', 'passive', 'fixed_best', 'oracle', 'bo', 'drl')
 BASELINES_FILE = 'oracle.npz'
@@ -43,7 +43,7 @@ BASELINES_FILE = 'oracle.npz'
 
 def load_estimator(models_dir: Path) -> SurrogateEstimator:
     """The run-time VAE estimator from ``models_dir/vae_encoder.npz`` (numpy; no torch)."""
-    from dlmpc_ros.control.estimator import SurrogateEstimator
+    from dlmpc_ros.learning.estimator import SurrogateEstimator
     from dlmpc_ros.learning.encoder import load_encoder
     return SurrogateEstimator(load_encoder(Path(models_dir)))
 

@@ -83,12 +83,8 @@ class OnlineCorrection:
         d = np.asarray(delta, float).reshape(-1) / 0.1
         return np.stack([np.ones_like(d), d, np.abs(d)], axis=1)
 
-    def add(self, delta: float, error: float) -> None:
-        """One move's turn and its error (measured minus predicted change of log O)."""
-        self.extend([delta], [error])
-
     def extend(self, deltas, errors) -> None:
-        """Moves' turns and errors (n,), then one fit to the last ``memory`` moves."""
+        """Moves' turns and errors (n,) (measured less predicted change of log O); refit."""
         self.moves.extend(zip(np.asarray(deltas, float).tolist(),
                               np.asarray(errors, float).tolist()))
         if not self.moves:
@@ -145,7 +141,7 @@ class RotationPlanner:
         if pending is not None:  # how did the last move do?
             delta, predicted, before = pending
             if cfg.online:
-                self.correction.add(delta, (log_o - before) - predicted)
+                self.correction.extend([delta], [(log_o - before) - predicted])
             if log_o - before < np.log(UNDO_BELOW):
                 self.undone += 1
                 self.recent.clear()
@@ -186,7 +182,6 @@ class CurveRotation:
         #: knots a move was planned next to (their own evidence)
         self.explored = np.zeros(knots, bool)
         self.limit = float(limit)
-        self.updates = 0
 
     def start_from(self, knots: np.ndarray, values: np.ndarray) -> None:
         """Begin from a calibrated rotation, ``values`` [rad] at ``knots`` (within +-limit)."""
@@ -213,4 +208,3 @@ class CurveRotation:
             change = change * (1.0 - float(np.interp(u, self.knots, shared)) / delta)
         self.values[index] = np.clip(self.values[index] + change, -self.limit, self.limit)
         self.explored[index] |= weights > 0
-        self.updates += 1

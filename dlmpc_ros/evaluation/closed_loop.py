@@ -18,7 +18,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from dlmpc_ros.control.estimator import SurrogateEstimator
+from dlmpc_ros.learning.estimator import SurrogateEstimator
 from dlmpc_ros.control.period_measurement import (MEASUREMENT_ROUND_TRIPS, SETTLE_TIMEOUT,
                                                   SETTLE_TOLERANCE, PeriodMeasurement)
 from dlmpc_ros.control.step import Controller, ControlStep

@@ -39,7 +39,7 @@ from dlmpc_ros.evaluation.metrics import first_hold
 from dlmpc_ros.learning.tables import envelope_objective
 
 if TYPE_CHECKING:
-    from dlmpc_ros.control.estimator import SurrogateEstimator
+    from dlmpc_ros.learning.estimator import SurrogateEstimator
     from dlmpc_ros.control.step import Controller
 
 DRIFTS = ('held', 'drift')

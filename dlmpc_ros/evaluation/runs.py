@@ -7,7 +7,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from dlmpc_ros.control.estimator import SurrogateEstimator
+from dlmpc_ros.learning.estimator import SurrogateEstimator
 from dlmpc_ros.control.factory import load_estimator, make_controller
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.period_measurement import (MEASUREMENT_ROUND_TRIPS, SETTLE_TIMEOUT,
