@@ -11,7 +11,7 @@ Prints, and with ``--out`` writes as JSON:
   (``plugins.py``, ``factory.py``);
 - **per-period path**: the modules a control period of the default strategy runs
   through, from the node's callback to the published command (``PER_PERIOD``, read off
-  the code: the node, its base class, the period's measurement, the supervisor with its
+  the code: the node's base class, the period's measurement, the supervisor with its
   modes, their parts, the learned models' forward passes), and their lines.
 
 Usage::
@@ -35,8 +35,11 @@ NOT_CONTROL_LAW = {'__init__.py', 'esc.py', 'ga.py', 'bo.py', 'drl.py', 'observa
                    'baselines.py', 'plugins.py', 'factory.py'}
 #: Modules a control period of the default strategy runs through, callback to published
 #: command (the paper's loops add ``control/planner.py``, ``learning/features.py`` and
-#: ``learning/mprnn.py``).
-PER_PERIOD = ('nodes/mpc_controller_node.py', 'ros/controller_base.py',
+#: ``learning/mprnn.py``). The node's own module (``nodes/mpc_controller_node.py``) is not
+#: among them: it turns parameters into a controller at start, and the callback, the
+#: decision and the publishing are its base class's; nor are the settings
+#: (``control/dlmpc_config.py``), which the modules read but which do nothing.
+PER_PERIOD = ('ros/controller_base.py',
               'control/period_measurement.py', 'control/dlmpc.py',
               'control/acquisition.py', 'control/tracking.py', 'control/branch_turn.py',
               'control/rotation_planner.py', 'control/step.py', 'control/limits.py',
@@ -49,11 +52,9 @@ def lines(path: Path) -> int:
 
 def settings() -> dict[str, list[str]]:
     """Config class -> its setting names (nested configs left out)."""
-    from dlmpc_ros.control.acquisition import AcquisitionConfig
-    from dlmpc_ros.control.dlmpc_config import DLMPCConfig
+    from dlmpc_ros.control.dlmpc_config import (AcquisitionConfig, DLMPCConfig, PlannerConfig,
+                                               TrackingConfig)
     from dlmpc_ros.control.limits import AngleLimits
-    from dlmpc_ros.control.rotation_planner import PlannerConfig
-    from dlmpc_ros.control.tracking import TrackingConfig
     out = {}
     for kind in (DLMPCConfig, TrackingConfig, AcquisitionConfig, PlannerConfig, AngleLimits):
         nested = {f.name for f in fields(kind) if f.name in ('limits', 'acquisition',

@@ -96,11 +96,9 @@ def variant_config(overrides: dict, models_dir: str,
     """A variant's ``(DLMPCConfig, run settings, models folder)``; the run settings are
     :class:`~dlmpc_ros.evaluation.runs.RunSpec` fields (``measurement_noise``,
     ``measurement_round_trips``)."""
-    from dlmpc_ros.control.acquisition import AcquisitionConfig
-    from dlmpc_ros.control.dlmpc_config import DLMPCConfig
+    from dlmpc_ros.control.dlmpc_config import (AcquisitionConfig, DLMPCConfig, PlannerConfig,
+                                               TrackingConfig)
     from dlmpc_ros.control.limits import AngleLimits
-    from dlmpc_ros.control.rotation_planner import PlannerConfig
-    from dlmpc_ros.control.tracking import TrackingConfig
 
     overrides = dict(overrides)
     run = {key: overrides.pop(key) for key in ('measurement_noise', 'measurement_round_trips')

@@ -22,9 +22,9 @@ from typing import Protocol
 
 import numpy as np
 
+from dlmpc_ros.control.dlmpc_config import AcquisitionConfig
 from dlmpc_ros.control.limits import AngleLimits, into_range
 from dlmpc_ros.core.angles import wrap_angles
-from dlmpc_ros.core.checks import in_range, setting
 from dlmpc_ros.core.symmetry import HALF_WAVE, QUARTER_TURN
 
 
@@ -47,24 +47,6 @@ CURVE_POINTS = (-0.25, -0.3, -0.2, -0.15, -0.1, -0.05, 0.0)
 #: A point's field is dead under this fraction of the latest locked period's E (dead points
 #: read 0.07-0.18 of it in development traces, others >= 0.5; ``scan_sweep.md``).
 WEAK_FIELD = 0.25
-
-
-@dataclass(frozen=True)
-class AcquisitionConfig:
-    """Settings of the lock supervisor (times in control periods); the scan lets go at the
-    first locked period (``bench/results/acquisition_confirm.md``)."""
-
-    lock_fraction: float = setting(0.5, 'locked when O >= this x the mean O of the map\'s '
-                                   'training targets', 1e-6, 0.999999)
-    patience: int = setting(3, 'unlocked control periods before the scan starts '
-                            '(bench/results/acquisition_pace.md)', 1, 1_000_000)
-    relock_patience: int = setting(10, 'unlocked control periods before the scan starts once '
-                                   'the laser has been locked in this run', 1, 1_000_000)
-    dwell_periods: int = setting(3, 'control periods the scan waits at each point once the '
-                                 'servos are there', 1, 1_000_000)
-
-    def __post_init__(self) -> None:
-        in_range(self)
 
 
 @dataclass(frozen=True)

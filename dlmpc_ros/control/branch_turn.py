@@ -62,7 +62,7 @@ VERIFY = 6
 class BranchTurn:
     """A change of branch under way, and what earlier ones taught.
 
-    ``turn_guard``: the tracker's (:class:`~dlmpc_ros.control.tracking.TrackingConfig`);
+    ``turn_guard``: the tracker's (:class:`~dlmpc_ros.control.dlmpc_config.TrackingConfig`);
     ``on_curve(u)``: the curve's angles (4,) [rad] at ``u`` (with any learned rotation)."""
 
     def __init__(self, turn_guard: float, limits: AngleLimits,

@@ -28,9 +28,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from dlmpc_ros.control.acquisition import (CURVE_POINTS, SCAN_POINTS, AcquisitionConfig,
-                                           LockSupervisor, MapScan)
-from dlmpc_ros.control.dlmpc_config import DLMPCConfig
+from dlmpc_ros.control.acquisition import CURVE_POINTS, SCAN_POINTS, LockSupervisor, MapScan
+from dlmpc_ros.control.dlmpc_config import AcquisitionConfig, DLMPCConfig
 from dlmpc_ros.control.planner import PredictionMonitor, solve_plan
 from dlmpc_ros.control.rotation_planner import RotationPlanner
 from dlmpc_ros.control.step import ControlStep, implausible

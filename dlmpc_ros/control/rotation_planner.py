@@ -14,12 +14,11 @@ fell under ``UNDO_BELOW`` of its O before is taken back.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from dlmpc_ros.core.checks import in_range, setting
+from dlmpc_ros.control.dlmpc_config import MEASUREMENTS, PlannerConfig
 
 if TYPE_CHECKING:  # torch-based: the caller loads it
     from dlmpc_ros.learning.response import ResponseEnsemble
@@ -29,8 +28,6 @@ if TYPE_CHECKING:  # torch-based: the caller loads it
 CANDIDATES = 21
 #: Smallest predicted gain of log O worth a move (``bench/results/planner_gate.md``).
 MIN_GAIN = 0.002
-#: Recent periods whose log E and log M are averaged as the predictor's input.
-MEASUREMENTS = 3
 #: Recent moves the online correction is fit to.
 MEMORY = 30
 #: Weight, in moves of the run, of a calibrated correction (``turn_correction.npz`` of
@@ -38,27 +35,6 @@ MEMORY = 30
 PRIOR_MOVES = 10.0
 #: A move after which O fell under this fraction of its O before is taken back.
 UNDO_BELOW = 0.85
-
-
-@dataclass(frozen=True)
-class PlannerConfig:
-    """Settings of the rotation planner."""
-
-    radius: float = setting(0.1, 'trust radius: largest turn of the curve per plan [rad]',
-                            1e-3, 1.0)
-    spread_penalty: float = setting(1.0, "weight of the predictor ensemble's spread against "
-                                    'its mean gain (bench/results/planner_gate.md)', 0.0, 100.0)
-    noise_gate: float = setting(
-        1.0, 'a turn must be predicted to gain this many standard deviations of the noise of '
-        f'its own measured gain, noise x sqrt(2 / {MEASUREMENTS}) (noise: one period\'s log O '
-        'noise; 0: off; bench/results/noise_gate.md)', 0.0, 100.0)
-    online: bool = setting(True, "correct the predictor online from the run's own turns")
-    explore: bool = setting(False, 'calibration runs: a random turn within the trust radius '
-                            'each plan instead of the planned one (seeded 0; the undo '
-                            'guards); record a bag for `dlmpc-train adapt`')
-
-    def __post_init__(self) -> None:
-        in_range(self)
 
 
 class OnlineCorrection:

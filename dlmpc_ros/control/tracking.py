@@ -21,26 +21,21 @@ current point (the learned rotation, :mod:`dlmpc_ros.control.rotation_planner`).
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
 from enum import Enum
 
 import numpy as np
 
 from dlmpc_ros.control.acquisition import ScanPoint
 from dlmpc_ros.control.branch_turn import ABANDONED, ARRIVED, KEPT, RETURNED, BranchTurn
+from dlmpc_ros.control.dlmpc_config import (MAX_STEP, MIN_STEP, RPROP_GROW, RPROP_SHRINK,
+                                           TrackingConfig)
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control.rotation_planner import CurveRotation, RotationPlanner
 from dlmpc_ros.core.angles import wrap_angles
-from dlmpc_ros.core.checks import in_range, setting
 from dlmpc_ros.core.symmetry import HALF_WAVE, QUARTER_TURN
 from dlmpc_ros.learning.curve import check_curve
 
 
-#: Factors on the estimate's step while the dither's comparisons agree in sign, and when
-#: they flip (Rprop).
-RPROP_GROW, RPROP_SHRINK = 1.5, 0.5
-#: Smallest and largest change of the estimate per compared block (K units).
-MIN_STEP, MAX_STEP = 0.005, 0.03
 #: Dither blocks between two requests for a turn of the curve (with a planner).
 PLAN_EVERY = 4
 #: Points along the curve that carry the learned rotation.
@@ -61,52 +56,6 @@ TURN_REFERENCE = 3
 #: The branch trial compares the mean O of the last this many blocks (both dither signs)
 #: with the best such mean on the branch (``bench/results/noise_levels.md``).
 TRIAL_BLOCKS = 2
-
-
-@dataclass(frozen=True)
-class TrackingConfig:
-    """Settings of the curve tracker (times in control periods; ``s`` in K's units)."""
-
-    start: float = setting(-0.1, 'curve parameter where tracking starts after the inner '
-                           'loop (K units; a point that locks from most pulses)', -1.0, 1.0)
-    dither: float = setting(0.03, 'half-amplitude of the dither on the curve parameter '
-                            '(K units)', 1e-9, 1.0)
-    block: int = setting(3, 'control periods per dither half', 1, 10_000)
-    step: float = setting(0.015, 'first change of the estimate per compared dither block '
-                          f'(K units); it grows by {RPROP_GROW} while the comparisons agree '
-                          f'in sign and shrinks by {RPROP_SHRINK} when they flip (Rprop), '
-                          f'within [{MIN_STEP}, {MAX_STEP}]', MIN_STEP, MAX_STEP)
-    noise_deadband: float = setting(
-        1.0, "the estimate moves only when the dither's O difference passes this many "
-        'standard deviations of the measurement noise read off the run (0: off; '
-        'bench/results/noise_deadband.md)', 0.0, 10.0)
-    entry_patience: int = setting(3, 'locked control periods under the inner loop before '
-                                  'tracking takes over', 1, 1_000_000)
-    settle: int = setting(20, 'control periods after entry before the guard judges O (for '
-                          '2 x block periods) and the dither\'s comparisons count',
-                          0, 1_000_000)
-    guard: float = setting(0.85, 'right after an entry, hand back to the inner loop when O '
-                           'falls below this x the O at entry', 1e-6, 1.0)
-    guard_periods: int = setting(3, 'consecutive control periods under the guard that hand '
-                                 'back', 1, 1_000_000)
-    mirror_margin: float = setting(0.03, 'how far past K = 0 the estimate must go before '
-                                   'the tracker turns to the mirror branch (K units)',
-                                   0.0, 1.0)
-    turn_guard: float = setting(0.45, 'during a change of branch, or on trial after it, O '
-                                'under this x the O before it turns back '
-                                '(bench/results/entry_turn.md)', 1e-6, 1.0)
-    trial_drop: float = setting(0.08, 'relative fall of O under its best on this branch '
-                                'that makes the tracker try the other branch (0: only the '
-                                'estimate decides)', 0.0, 0.999999)
-    entry_trial_after: int = setting(6, 'control periods after an entry before the other '
-                                     'branch is tried once (an entry may be on the weaker '
-                                     'branch; bench/results/entry_turn.md)', 0, 1_000_000)
-    entry_trial_below: float = setting(0.8, 'the entry trial is made only if O is under '
-                                       "this x the curve's own steady O at the estimate "
-                                       '(without that O, always; 0: never)', 0.0, 100.0)
-
-    def __post_init__(self) -> None:
-        in_range(self)
 
 
 class TrackerState(Enum):

@@ -19,11 +19,9 @@ from typing import TYPE_CHECKING
 
 from rclpy.experimental import EventsExecutor
 
-from dlmpc_ros.control.acquisition import AcquisitionConfig
-from dlmpc_ros.control.dlmpc_config import DLMPCConfig
+from dlmpc_ros.control.dlmpc_config import (AcquisitionConfig, DLMPCConfig, PlannerConfig,
+                                           TrackingConfig)
 from dlmpc_ros.control.factory import load_dlmpc
-from dlmpc_ros.control.rotation_planner import PlannerConfig
-from dlmpc_ros.control.tracking import TrackingConfig
 from dlmpc_ros.core import checks
 from dlmpc_ros.learning.model_files import ModelFileError
 from dlmpc_ros.paths import models_dir

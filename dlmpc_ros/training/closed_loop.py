@@ -4,7 +4,7 @@ steady-response predictor is trained on besides the rotation data (DAgger's aggr
 The rotation data (:mod:`dlmpc_ros.training.response`) holds steady states along scans of
 the rotation from the curve's own; the controller visits other states (the tracker's
 turns, a remembered rotation, K drifting under it). Here the exploring DL-MPC
-(:attr:`~dlmpc_ros.control.rotation_planner.PlannerConfig.explore`: every plan a random
+(:attr:`~dlmpc_ros.control.dlmpc_config.PlannerConfig.explore`: every plan a random
 turn within the trust radius, taken back if O falls, as ``bringup --controller explore``
 records a calibration bag) runs on family plants ``first_seed`` on (the rotation data's
 own plants: none of the evaluation's 1-8 or 101-108), under a random walk of K of
@@ -72,10 +72,9 @@ class RunJob:
 def closed_loop_run(job: RunJob) -> dict[str, np.ndarray]:
     """The control periods of one run: ``round_trip`` (n,), ``E``, ``M`` (n,) and
     ``angles`` (n, 4), where the laser measured a finite, positive E."""
-    from dlmpc_ros.control.dlmpc_config import DLMPCConfig
+    from dlmpc_ros.control.dlmpc_config import DLMPCConfig, PlannerConfig
     from dlmpc_ros.control.factory import load_dlmpc
     from dlmpc_ros.control.limits import AngleLimits
-    from dlmpc_ros.control.rotation_planner import PlannerConfig
     from dlmpc_ros.evaluation.runs import RunSpec, run_fast
     from dlmpc_ros.training.envelope import PlantTask, draw_task
     models = Path(job.models_dir)

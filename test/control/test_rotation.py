@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from dlmpc_ros.control.rotation_planner import CurveRotation
-from dlmpc_ros.control.rotation_planner import OnlineCorrection, PlannerConfig, RotationPlanner
+from dlmpc_ros.control.dlmpc_config import PlannerConfig
+from dlmpc_ros.control.rotation_planner import CurveRotation, OnlineCorrection, RotationPlanner
 from dlmpc_ros.learning.fit import fit
 from dlmpc_ros.learning.response import ResponseEnsemble, ResponseModelConfig
 
@@ -186,7 +186,8 @@ def test_a_move_not_yet_judged_can_be_retracted_once(toy_model):
 
 
 def test_a_turn_that_loses_the_laser_before_it_is_judged_is_taken_back(toy_model):
-    from dlmpc_ros.control.tracking import CurveTracker, TrackingConfig
+    from dlmpc_ros.control.dlmpc_config import TrackingConfig
+    from dlmpc_ros.control.tracking import CurveTracker
     grid = np.linspace(-0.3, 0.3, 61)
     curve = np.stack([2 * grid, 0.1 + 0 * grid, -0.2 + grid, 0.3 + 0 * grid], axis=1)
     config = TrackingConfig(entry_patience=1, settle=2, block=1, guard=0.8,

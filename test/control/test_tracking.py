@@ -8,11 +8,10 @@ import torch
 
 from dlmpc_ros.control.branch_turn import TURN_STEP, TurnEvent
 from dlmpc_ros.control.dlmpc import DLMPCController
-from dlmpc_ros.control.dlmpc_config import DLMPCConfig
+from dlmpc_ros.control.dlmpc_config import DLMPCConfig, TrackingConfig
 from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.control import tracking
-from dlmpc_ros.control.tracking import (COOLDOWN, TRACKER_TRANSITIONS, CurveTracker, TrackerState,
-                                        TrackingConfig)
+from dlmpc_ros.control.tracking import COOLDOWN, TRACKER_TRANSITIONS, CurveTracker, TrackerState
 from dlmpc_ros.core.symmetry import QUARTER_TURN
 from dlmpc_ros.learning.kmap import KMap, KMapConfig
 from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig

@@ -169,7 +169,7 @@ def test_mpc_controller_acts_each_period_holds_without_estimator_and_never_reads
 
 def test_mpc_controller_tracks_the_curve_once_locked_even_without_estimates(
         ros_env, tmp_path, probe):
-    from dlmpc_ros.control.tracking import TrackingConfig
+    from dlmpc_ros.control.dlmpc_config import TrackingConfig
     from dlmpc_ros.learning.curve import load_curve
     status = probe.listen(itf.TOPIC_CONTROLLER_STATUS)
     commands = probe.listen(itf.TOPIC_ANGLES_CMD)

@@ -7,10 +7,8 @@ from dataclasses import fields
 
 import pytest
 
-from dlmpc_ros.control.acquisition import AcquisitionConfig
-from dlmpc_ros.control.dlmpc_config import DLMPCConfig
-from dlmpc_ros.control.rotation_planner import PlannerConfig
-from dlmpc_ros.control.tracking import TrackingConfig
+from dlmpc_ros.control.dlmpc_config import (AcquisitionConfig, DLMPCConfig, PlannerConfig,
+                                           TrackingConfig)
 from dlmpc_ros.nodes import mpc_controller_node as node
 from dlmpc_ros.ros import controller_params as base
 
