@@ -1,9 +1,7 @@
 """Curve tracking for the DL-MPC: hold the laser on the best branch and follow K along it.
 
 Along the learned angle curve ``c(s)`` (``s`` a birefringence estimate in K's units) the
-steady O peaks near ``s = K``. The tracker estimates ``s`` from the measured O alone: it
-dithers ``s`` by ``+-dither`` in blocks of ``block`` periods, compares each block's O with
-the blocks around it (which cancels a linear drift of O) and steps toward the higher O.
+steady O peaks near ``s = K``; the tracker estimates ``s`` by dithering it (:class:`Dither`).
 
 It enters once the laser has been locked ``entry_patience`` periods (at ``start``) or
 where the scan locked. An entry that fails (O under ``guard`` x the O at entry in the
@@ -59,12 +57,8 @@ TRIAL_BLOCKS = 2
 
 
 class TrackerState(Enum):
-    """What the tracker does in a period (:attr:`CurveTracker.state`). Transitions:
-    IDLE -> DITHER (entry: locked for ``entry_patience`` periods after the cooldown, or
-    where the scan locked); DITHER -> TURN (the estimate past ``mirror_margin``, a fall
-    of ``trial_drop``, or the entry trial), TURN -> DITHER (kept, returned or abandoned);
-    DITHER -> IDLE (a failed entry: under the guard right after it);
-    any -> IDLE (the scan takes over)."""
+    """What the tracker does in a period (:attr:`CurveTracker.state`); its transitions:
+    :data:`TRACKER_TRANSITIONS`, each with its cause in docs/architecture.md."""
 
     IDLE = 'idle'      # not tracking: waiting for a lock and the cooldown
     DITHER = 'dither'  # on the curve, dithering the estimate (and planning turns)
@@ -108,9 +102,7 @@ class CurveTracker:
         self._entry_objective = 0.0
         self._wait = 0            # cooldown periods left
         self._cooldown = COOLDOWN
-        self._blocks: deque[tuple[float, float]] = deque(maxlen=3)  # (sign, O)
-        #: |change of log O| between consecutive periods of a block (same angles): noise
-        self._jitter: deque[float] = deque(maxlen=64)
+        self.dither = Dither(self.config)
         #: O of the latest ``TURN_REFERENCE`` periods (the O before a turn is their median)
         self._latest: deque[float] = deque(maxlen=TURN_REFERENCE)
         self.rotation = CurveRotation(self.grid[0], self.grid[-1], ROTATION_KNOTS,
@@ -145,10 +137,6 @@ class CurveTracker:
         u = float(np.clip(u, self.grid[0], self.grid[-1]))
         return np.array([np.interp(u, self.grid, self.angles[:, j]) for j in range(4)]) \
             + self.rotation(u)
-
-    def _command(self) -> np.ndarray:
-        """This period's angles: the point at the estimate, with the dither."""
-        return self.curve(self.estimate + self._sign * self.config.dither)
 
     def enter_at(self, estimate: float, branch: int, objective: float,
                  current: np.ndarray | None = None) -> None:
@@ -215,18 +203,14 @@ class CurveTracker:
                     and self.turner.begin(np.asarray(current, float),
                                           self.branch * self.estimate, self._reference()):
                 return self._turning(float(objective))
-        self._in_block += 1
-        previous = self._previous
-        if self._in_block > 1 and previous is not None and objective > 0 and previous > 0:
-            self._jitter.append(abs(float(np.log(objective / previous))))
-        self._previous = float(objective)
-        if self._in_block >= self.config.block:
-            self._end_block(float(objective))
+        move = self.dither.add(float(objective), compare=self._age > self.config.settle)
+        if move is not None:  # a dither block closed
+            self._end_block(float(objective), move)
             if (current is not None and self._wants_other_branch()
                     and self.turner.begin(np.asarray(current, float),
                                           self.branch * self.estimate, self._reference())):
                 return self._turning(float(objective))
-        return self._command()
+        return self.curve(self.estimate + self.dither.sign * self.config.dither)
 
     def _reference(self) -> float:
         """The O a turn begun now is judged against: the median of the latest periods."""
@@ -259,7 +243,7 @@ class CurveTracker:
             self.branch = -self.branch
             self.estimate = self._estimate_before_turn
         if event in (KEPT, RETURNED, ABANDONED):
-            self._restart_dither()
+            self.dither.restart()
             self._branch_best = 0.0  # the branch is chosen anew: its best from here on
             self._trial_values.clear()
             self._age = min(self._age, self.config.settle)  # let the guard settle again
@@ -279,7 +263,7 @@ class CurveTracker:
         self._entry_objective = float(np.median(self._recent))
         self._recentre()
         self._entry_trial = True
-        return self._command()
+        return self.curve(self.estimate + self.dither.sign * self.config.dither)
 
     def _recentre(self) -> None:
         """Put the estimate back to ``start`` and the dither to its first block."""
@@ -293,16 +277,7 @@ class CurveTracker:
         # the start point on the branch the tracker is on (its twin on the mirror branch)
         self.estimate = self.branch * float(np.clip(self.config.start, self.grid[0],
                                                     self.grid[-1]))
-        self._restart_dither()
-
-    def _restart_dither(self) -> None:
-        """Start the dither afresh: first block, no blocks recorded, first Rprop step (the
-        learned rotation stays)."""
-        self._sign, self._in_block = 1.0, 0  # sign of the dither in the current block
-        self._previous: float | None = None  # O of the block's previous period
-        self._blocks.clear()
-        self._block_count = 0                # blocks closed since (for the plans)
-        self._step, self._last_move = self.config.step, 0.0  # Rprop step and last sign
+        self.dither.restart()
 
     def _forget_unjudged_turn(self) -> None:
         """Take back the planner's latest turn if it has not judged it yet (the laser lost
@@ -322,12 +297,82 @@ class CurveTracker:
         if failed:
             self._cooldown = min(2 * self._cooldown, 64 * COOLDOWN)
 
-    def _deadband(self) -> float:
-        """The relative O difference under which the estimate holds: ``DEADBAND``, or
-        ``noise_deadband`` standard deviations of the compared difference's noise if
-        larger (a block's O is its last period's; the difference weighs three blocks 1,
-        1/2, 1/2, so its variance is 1.5 times a period's; averaging a block's periods
-        did not pay, ``bench/results/noise_block.md``)."""
+    def _end_block(self, objective: float, move: float) -> None:
+        """A dither block closed with O = ``objective``: record it for the branch trial, move
+        the estimate by ``move``; every ``PLAN_EVERY`` blocks, turn the curve at the
+        estimate's point by the planner's turn."""
+        cfg = self.config
+        if self._age > cfg.settle and cfg.trial_drop > 0 and np.isfinite(objective):
+            self._trial_values.append(objective)
+            if len(self._trial_values) == TRIAL_BLOCKS:
+                self._branch_best = max(self._branch_best, sum(self._trial_values)
+                                        / TRIAL_BLOCKS)
+        if move:
+            self.estimate = float(np.clip(self.estimate + move, self.grid[0], self.grid[-1]))
+        if (self.planner is not None and self._age > cfg.settle
+                and self.dither.blocks % PLAN_EVERY == 0):
+            u = self.branch * self.estimate
+            turn = self.planner.plan(u, self.rotation(u), self.dither.noise())
+            if turn:
+                self.rotation.move(u, turn)
+                self.planned = float(turn)
+                self._turn_at = u
+                self.dither.compared.clear()  # O moves with the turn: compare blocks after it
+
+
+class Dither:
+    """Where the laser sits on the curve, read off the measured O: the tracker commands the
+    estimate plus ``sign x dither``, the sign flipping every ``block`` periods; a closed
+    block's O is compared with the mean of its neighbours (which cancels a linear drift of
+    O), and the estimate moves toward the higher O by an Rprop step, unless under the deadband."""
+
+    def __init__(self, config: TrackingConfig) -> None:
+        self.config = config
+        #: |change of log O| between consecutive periods of a block (same angles): noise
+        self._jitter: deque[float] = deque(maxlen=64)
+        #: (sign, O) of the latest closed blocks (cleared when O moves for another reason)
+        self.compared: deque[tuple[float, float]] = deque(maxlen=3)
+        self.restart()
+
+    def restart(self) -> None:
+        """First block, no blocks recorded, first Rprop step (the noise read stays)."""
+        self.sign, self._in_block = 1.0, 0   # sign of the dither in the current block
+        self._previous: float | None = None  # O of the block's previous period
+        self.compared.clear()
+        self.blocks = 0                      # blocks closed since (for the plans)
+        self._step, self._last_move = self.config.step, 0.0  # Rprop step and last sign
+
+    def add(self, objective: float, compare: bool) -> float | None:
+        """One period's O -> None while its block runs; once it closes, the move of the
+        estimate (K units; 0: none; with ``compare`` False the block is only recorded)."""
+        self._in_block += 1
+        previous = self._previous
+        if self._in_block > 1 and previous is not None and objective > 0 and previous > 0:
+            self._jitter.append(abs(float(np.log(objective / previous))))
+        self._previous = objective
+        if self._in_block < self.config.block:
+            return None
+        self.compared.append((self.sign, objective))
+        self._in_block, self._previous = 0, None
+        self.blocks += 1
+        self.sign = -self.sign
+        if len(self.compared) < 3 or not compare:
+            return 0.0
+        (_, before), (sign, middle), (_, after) = self.compared
+        difference = sign * (middle - 0.5 * (before + after))   # O(+) - O(-)
+        if not abs(difference) > self.deadband() * max(abs(middle), 1e-12):
+            return 0.0
+        way = float(np.sign(difference))  # Rprop: the step grows while the way repeats
+        if self._last_move:                # and shrinks when it flips, within the bounds
+            self._step = float(np.clip(self._step * (
+                RPROP_GROW if way == self._last_move else RPROP_SHRINK), MIN_STEP, MAX_STEP))
+        self._last_move = way
+        return self._step * way
+
+    def deadband(self) -> float:
+        """The relative O difference under which the estimate holds: ``DEADBAND``, or if
+        larger ``noise_deadband`` sigmas of the difference's noise (it weighs three blocks'
+        last periods 1, 1/2, 1/2: 1.5 x a period's variance; ``noise_block.md``)."""
         cfg = self.config
         if cfg.noise_deadband <= 0 or len(self._jitter) < 8:
             return DEADBAND
@@ -342,49 +387,6 @@ class CurveTracker:
             return 0.0
         # median |difference of two periods| -> one period's standard deviation
         return 1.4826 * float(np.median(self._jitter)) / np.sqrt(2.0)
-
-    def _end_block(self, objective: float) -> None:
-        """Close a dither half: compare it with its neighbours and move the estimate; every
-        ``PLAN_EVERY`` blocks, turn the curve at the estimate's point by the planner's
-        turn (and start the dither afresh)."""
-        cfg = self.config
-        self._blocks.append((self._sign, objective))
-        self._in_block = 0
-        self._previous = None
-        self._block_count += 1
-        self._sign = -self._sign
-        if self._age > cfg.settle and cfg.trial_drop > 0 and np.isfinite(objective):
-            self._trial_values.append(objective)
-            if len(self._trial_values) == TRIAL_BLOCKS:
-                self._branch_best = max(self._branch_best, sum(self._trial_values)
-                                        / TRIAL_BLOCKS)
-        if len(self._blocks) == 3 and self._age > cfg.settle:
-            (_, before), (sign, middle), (_, after) = self._blocks
-            difference = sign * (middle - 0.5 * (before + after))   # O(+) - O(-)
-            if abs(difference) > self._deadband() * max(abs(middle), 1e-12):
-                self._step, self._last_move, move = _rprop(difference, self._step,
-                                                           self._last_move)
-                self.estimate = float(np.clip(self.estimate + move, self.grid[0],
-                                              self.grid[-1]))
-        if (self.planner is not None and self._age > cfg.settle
-                and self._block_count % PLAN_EVERY == 0):
-            u = self.branch * self.estimate
-            turn = self.planner.plan(u, self.rotation(u), self.noise())
-            if turn:
-                self.rotation.move(u, turn)
-                self.planned = float(turn)
-                self._turn_at = u
-                self._blocks.clear()  # O moves with the turn: compare blocks after it
-
-
-def _rprop(slope: float, step: float, last: float) -> tuple[float, float, float]:
-    """One Rprop move up the sign of ``slope``: ``(new step, its sign, the move)``; the
-    step grows while the sign repeats, shrinks when it flips, within [MIN_STEP, MAX_STEP]."""
-    sign = float(np.sign(slope))
-    if last:
-        step = float(np.clip(step * (RPROP_GROW if sign == last else RPROP_SHRINK),
-                             MIN_STEP, MAX_STEP))
-    return step, sign, step * sign
 
 
 class CurveScan:

@@ -112,11 +112,11 @@ def test_the_noise_deadband_reads_the_noise_off_the_run_and_holds_the_estimate_a
     aware = np.mean([np.mean(np.abs(run(1.0, 0.014, s)[0] + 0.1)) for s in range(3)])
     assert aware < 0.8 * fixed, (aware, fixed)
     _, tracker = run(1.0, 0.014, 0)
-    assert 0.011 < tracker.noise() < 0.017  # one period's 1.4 %
-    assert 0.01 < tracker._deadband() < 0.03  # about 1.4 % x sqrt(1.5)
+    assert 0.011 < tracker.dither.noise() < 0.017  # one period's 1.4 %
+    assert 0.01 < tracker.dither.deadband() < 0.03  # about 1.4 % x sqrt(1.5)
     quiet, tracker = run(1.0, 0.0, 0, k=0.0)  # no noise: climbs from -0.1 to the peak
     assert abs(np.mean(quiet[-300:])) < 0.02
-    assert tracker._deadband() < 1e-3 and tracker.noise() < 1e-3
+    assert tracker.dither.deadband() < 1e-3 and tracker.dither.noise() < 1e-3
 
 
 def test_a_failed_entry_hands_back_and_waits_a_growing_cooldown_later_the_guard_is_off():
@@ -149,7 +149,7 @@ class _NoisePlanner:
         self.told, self.tracker = told, None
 
     def plan(self, u: float, theta: float, noise: float = 0.0) -> float:
-        self.told.append(noise - self.tracker.noise())
+        self.told.append(noise - self.tracker.dither.noise())
         return 0.0
 
     def retract(self) -> float:
