@@ -47,34 +47,25 @@ SURROGATE_LIMIT = 1e3
 class Period:
     """What the supervisor knows in one control period."""
 
-    current: np.ndarray
-    """(4,) angles applied during the period [rad]."""
-    objective: float
-    """Measured O = E / M (NaN where M <= 0)."""
-    surrogate: float
-    """The estimator's K surrogate for the measurement (NaN: none)."""
-    energy: float
-    """Measured E."""
+    current: np.ndarray  # (4,) angles applied during the period [rad]
+    objective: float     # measured O = E / M (NaN where M <= 0)
+    surrogate: float     # the estimator's K surrogate for the measurement (NaN: none)
+    energy: float        # measured E
 
 
 @dataclass(frozen=True)
 class Decision:
     """A mode's choice for the next period (the supervisor applies the servo limits)."""
 
-    angles: np.ndarray
-    """(4,) wanted angles [rad]."""
-    mode: str
-    """Name of the mode that decided."""
-    surrogate: float | None = None
-    """The estimate to report (None: the period's surrogate)."""
+    angles: np.ndarray            # (4,) wanted angles [rad]
+    mode: str                     # name of the mode that decided
+    surrogate: float | None = None  # the estimate to report (None: the period's surrogate)
+    #: (N,) predicted O over the horizon, the plan's iterations, and the (2,) normalized
+    #: state it predicts for the end of the next period (the outer loop's plans only)
     predicted_objective: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    """(N,) predicted O over the horizon (the outer loop's plans only)."""
     iterations: int = 0
-    """Plan iterations (the outer loop's plans only)."""
     predicted_next: torch.Tensor | None = None
-    """(2,) normalized state the plan predicts for the end of the next period."""
-    travel: bool = False
-    """The angles only move the servos on toward a goal (no measurement needed there)."""
+    travel: bool = False  # the angles only move the servos on (no measurement needed there)
 
 
 class Mode:

@@ -158,10 +158,17 @@ class CurveRotation:
         #: knots a move was planned next to (their own evidence)
         self.explored = np.zeros(knots, bool)
         self.limit = float(limit)
+        self._start = self.values.copy()  # what :meth:`forget` returns to
 
     def start_from(self, knots: np.ndarray, values: np.ndarray) -> None:
         """Begin from a calibrated rotation, ``values`` [rad] at ``knots`` (within +-limit)."""
         self.values = np.clip(np.interp(self.knots, knots, values), -self.limit, self.limit)
+        self._start = self.values.copy()
+
+    def forget(self) -> None:
+        """Back to the rotation the run began with, every knot unexplored again."""
+        self.values = self._start.copy()
+        self.explored[:] = False
 
     def __call__(self, u: float) -> float:
         """theta at ``u`` [rad] (u clipped to the knots' range)."""

@@ -160,10 +160,12 @@ class CurveTracker:
             self._half_wave_frame = QUARTER_TURN * float(abs(wrap_angles(gap)) > np.pi / 4)
 
     def interrupt(self) -> None:
-        """Something else took over (the acquisition scan): stop and wait a cooldown."""
+        """Something else took over (the acquisition scan): stop and wait a cooldown. The
+        pulse was lost on the turned curve: its rotation goes back to the run's start."""
         self.turner.cancel()
         if self.active:
             self._forget_unjudged_turn()
+            self.rotation.forget()
             self._leave(failed=self._age <= self.config.settle + self.config.guard_periods)
         self._recent.clear()
 

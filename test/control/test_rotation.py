@@ -50,6 +50,17 @@ def test_a_spread_into_unexplored_knots_leaves_what_was_learned_there():
     assert rotation(-0.1) == pytest.approx(0.1 * np.exp(-0.5) - 0.05 * np.exp(-0.5))
 
 
+def test_forgetting_returns_to_the_rotation_the_run_began_with():
+    rotation = CurveRotation(-0.3, 0.3, knots=7, limit=1.0, spread=0.1)
+    rotation.move(-0.2, 0.1)
+    rotation.forget()
+    assert not rotation.values.any() and not rotation.explored.any()
+    rotation.start_from(np.array([-0.3, 0.3]), np.array([0.2, -0.2]))   # calibrated
+    rotation.move(0.0, 0.3)
+    rotation.forget()
+    np.testing.assert_allclose(rotation.values, np.linspace(0.2, -0.2, 7))
+
+
 @pytest.mark.parametrize('bad', [dict(low=0.3, high=-0.3), dict(knots=1), dict(limit=0.0),
                                  dict(low=np.nan), dict(spread=-0.1)])
 def test_bad_rotation_settings_are_rejected(bad):
@@ -207,3 +218,19 @@ def test_a_turn_that_loses_the_laser_before_it_is_judged_is_taken_back(toy_model
     tracker.interrupt()                 # and the scan takes over
     assert tracker.rotation(u) == pytest.approx(0.0, abs=1e-12)
     assert planner.undone == 1 and tracker.planned == pytest.approx(-turn)
+
+
+def test_a_lost_pulse_forgets_the_rotation_learned_in_the_run():
+    from dlmpc_ros.control.dlmpc_config import TrackingConfig
+    from dlmpc_ros.control.tracking import CurveTracker
+    grid = np.linspace(-0.3, 0.3, 61)
+    curve = np.stack([2 * grid, 0.1 + 0 * grid, -0.2 + grid, 0.3 + 0 * grid], axis=1)
+    tracker = CurveTracker(grid, curve, threshold=0.1,
+                           config=TrackingConfig(entry_patience=1, start=-0.1))
+    tracker.step(0.2)                   # entered
+    tracker.rotation.move(-0.1, 0.2)    # a turn kept earlier in the run
+    tracker.interrupt()                 # the pulse is lost: the scan takes over
+    assert not tracker.rotation.values.any()
+    tracker.rotation.move(-0.1, 0.2)
+    tracker.interrupt()                 # not tracking: nothing was lost on the curve
+    assert tracker.rotation(-0.1) == pytest.approx(0.2)
