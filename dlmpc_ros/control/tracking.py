@@ -248,7 +248,6 @@ class CurveTracker:
             self.dither.restart()
             self._branch_best = 0.0  # the branch is chosen anew: its best from here on
             self._trial_values.clear()
-            self._age = min(self._age, self.config.settle)  # let the guard settle again
         return self.curve(self.estimate) if command is None else command
 
     def _maybe_enter(self, objective: float, locked: bool) -> np.ndarray | None:

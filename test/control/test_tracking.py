@@ -231,6 +231,26 @@ def test_tracker_turns_to_the_mirror_twin_when_k_drifts_through_zero():
     assert plain.branch == 1 and np.mean(o_plain[-100:]) < 0.186
 
 
+def test_the_guard_judges_entries_only_not_the_end_of_a_branch_turn():
+    """A turn kept late in a run is judged by its own rule: a fall of O after it leaves
+    the tracker on (the scan takes over if the pulse goes), not handed to the inner loop."""
+    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, entry_trial_after=NEVER)
+    drift = lambda t: -0.15 + 0.3 * min(t / 2500, 1.0)          # noqa: E731
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
+    o, current, before = 0.2, None, tracker.state
+    for t in range(3000):
+        cmd = tracker.step(o, current)
+        current = tracker.limits.apply(cmd if current is None else current, cmd)
+        o = _mirrored_objective(current, drift(t))
+        if before is TrackerState.TURN and tracker.state is TrackerState.DITHER:
+            break                                   # a turn just ended
+        before = tracker.state
+    assert t > 100 and tracker.active
+    for _ in range(3 * cfg.block + cfg.guard_periods):  # O well under 0.85 x the entry's
+        assert tracker.step(0.12, current) is not None
+    assert tracker.active
+
+
 def test_where_the_estimate_says_nothing_a_fall_of_o_makes_the_tracker_try_the_twin():
     """A laser whose O does not change along the curve (on other cavities the best point
     often sits at the curve's end whatever K is): the estimate never leaves its start, K
