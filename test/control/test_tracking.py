@@ -232,8 +232,9 @@ def test_tracker_turns_to_the_mirror_twin_when_k_drifts_through_zero():
 
 
 def test_the_guard_judges_entries_only_not_the_end_of_a_branch_turn():
-    """A turn kept late in a run is judged by its own rule: a fall of O after it leaves
-    the tracker on (the scan takes over if the pulse goes), not handed to the inner loop."""
+    """A branch turn ending late in a run is judged by its own rule: a fall of O after it
+    leaves the tracker on (the scan takes over if the pulse goes), not handed to the inner
+    loop."""
     cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, entry_trial_after=NEVER)
     drift = lambda t: -0.15 + 0.3 * min(t / 2500, 1.0)          # noqa: E731
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
