@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 import torch
 
-from dlmpc_ros.control.dlmpc_config import PlannerConfig
+from dlmpc_ros.control.dlmpc_config import PlannerConfig, TrackingConfig
 from dlmpc_ros.control.rotation_planner import CurveRotation, OnlineCorrection, RotationPlanner
+from dlmpc_ros.control.tracking import CurveTracker
 from dlmpc_ros.learning.fit import fit
 from dlmpc_ros.learning.response import ResponseEnsemble, ResponseModelConfig
 
@@ -196,16 +197,20 @@ def test_a_move_not_yet_judged_can_be_retracted_once(toy_model):
     assert len(planner.correction.moves) == 0
 
 
-def test_a_turn_that_loses_the_laser_before_it_is_judged_is_taken_back(toy_model):
-    from dlmpc_ros.control.dlmpc_config import TrackingConfig
-    from dlmpc_ros.control.tracking import CurveTracker
+def _toy_tracker(config: TrackingConfig,
+                 planner: RotationPlanner | None = None) -> CurveTracker:
+    """A tracker on a straight toy curve over K in [-0.3, 0.3], locked above O = 0.1."""
     grid = np.linspace(-0.3, 0.3, 61)
     curve = np.stack([2 * grid, 0.1 + 0 * grid, -0.2 + grid, 0.3 + 0 * grid], axis=1)
+    return CurveTracker(grid, curve, threshold=0.1, config=config, planner=planner)
+
+
+def test_a_turn_that_loses_the_laser_before_it_is_judged_is_taken_back(toy_model):
     config = TrackingConfig(entry_patience=1, settle=2, block=1, guard=0.8,
                             guard_periods=2, start=-0.1)
     planner = RotationPlanner(toy_model, PlannerConfig(radius=0.05, spread_penalty=0.0,
                                                        online=False, noise_gate=0.0))
-    tracker = CurveTracker(grid, curve, threshold=0.1, config=config, planner=planner)
+    tracker = _toy_tracker(config, planner)
     for _ in range(20):                 # a steady laser: the planner turns once
         planner.observe(np.exp(0.2), np.exp(3.0))
         tracker.step(0.2)
@@ -221,12 +226,7 @@ def test_a_turn_that_loses_the_laser_before_it_is_judged_is_taken_back(toy_model
 
 
 def test_a_lost_pulse_forgets_the_rotation_learned_in_the_run():
-    from dlmpc_ros.control.dlmpc_config import TrackingConfig
-    from dlmpc_ros.control.tracking import CurveTracker
-    grid = np.linspace(-0.3, 0.3, 61)
-    curve = np.stack([2 * grid, 0.1 + 0 * grid, -0.2 + grid, 0.3 + 0 * grid], axis=1)
-    tracker = CurveTracker(grid, curve, threshold=0.1,
-                           config=TrackingConfig(entry_patience=1, start=-0.1))
+    tracker = _toy_tracker(TrackingConfig(entry_patience=1, start=-0.1))
     tracker.step(0.2)                   # entered
     tracker.rotation.move(-0.1, 0.2)    # a turn kept earlier in the run
     tracker.interrupt()                 # the pulse is lost: the scan takes over
