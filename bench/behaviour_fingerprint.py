@@ -4,10 +4,11 @@ Five short fast runs (8,000 round trips each) that between them exercise every p
 the controller: the nominal cavity and a family plant (the issue-32 plant: pump 1.60,
 saturation energy 4.6, loss 0.115, dispersion -0.35), stress-suite conditions with
 ideal and slow servos and 1 % detector noise (scan, entries, branch turns, planned turns,
-inner loop), and ``strategy:=paper`` (the MP-RNN's outer loop). Per run it prints the mean
-O, the periods per mode and a hash of every round trip's angles; with ``--check FILE``
-it compares them with a recorded run and exits 1 on any difference. The hashes are of
-float64 arrays: compare on one machine and library set (``requirements.txt``).
+held angles), and ``strategy:=paper`` (the inner loop and the MP-RNN's outer loop). Per
+run it prints the mean O, the periods per mode and a hash of every round trip's angles;
+with ``--check FILE`` it compares them with a recorded run and exits 1 on any difference.
+The hashes are of float64 arrays: compare on one machine and library set
+(``requirements.txt``).
 
 Usage::
 

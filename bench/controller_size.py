@@ -34,16 +34,17 @@ CONTROL = ROOT / 'dlmpc_ros' / 'control'
 NOT_CONTROL_LAW = {'__init__.py', 'esc.py', 'ga.py', 'bo.py', 'drl.py', 'observation.py',
                    'baselines.py', 'plugins.py', 'factory.py'}
 #: Modules a control period of the default strategy runs through, callback to published
-#: command (the paper's loops add ``control/planner.py``, ``learning/features.py`` and
-#: ``learning/mprnn.py``). The node's own module (``nodes/mpc_controller_node.py``) is not
-#: among them: it turns parameters into a controller at start, and the callback, the
-#: decision and the publishing are its base class's; nor are the settings
+#: command (the paper's loops add ``control/planner.py``, ``learning/kmap.py``,
+#: ``learning/features.py`` and ``learning/mprnn.py``). The node's own module
+#: (``nodes/mpc_controller_node.py``) is not among them: it turns parameters into a
+#: controller at start, and the callback, the decision and the publishing are its base
+#: class's; nor are the settings
 #: (``control/dlmpc_config.py``), which the modules read but which do nothing.
 PER_PERIOD = ('ros/controller_base.py',
               'control/period_measurement.py', 'control/dlmpc.py',
               'control/acquisition.py', 'control/tracking.py', 'control/branch_turn.py',
               'control/rotation_planner.py', 'control/step.py', 'control/limits.py',
-              'learning/kmap.py', 'learning/response.py')
+              'learning/response.py')
 
 
 def lines(path: Path) -> int:

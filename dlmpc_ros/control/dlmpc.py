@@ -14,9 +14,8 @@ sets the next angles (within the servo limits):
    ``outer`` loop instead: MP-RNN plans of the next N angle sets by gradient ascent on
    the predicted O, the first applied, re-planned each period
    (:mod:`~dlmpc_ros.control.planner`), while its one-step forecasts are accurate;
-3. ``inner``: the surrogate through the K-to-angles map (while the tracker is not in
-   charge);
-4. ``hold``: keep the angles (no surrogate).
+3. ``inner`` (without a curve only): the surrogate through the K-to-angles map;
+4. ``hold``: keep the angles (with a curve: whenever the tracker is not in charge).
 """
 
 from __future__ import annotations
@@ -237,11 +236,11 @@ class DLMPCController:
         if self.tracker is None:
             self.monitor = PredictionMonitor(mprnn, cfg)
             self.outer = OuterLoop(self.monitor, cfg)
-        self.modes: list[Mode] = [
-            *([AcquireMode(self.acquisition, self.tracker)]
-              if self.acquisition is not None else []),
-            TrackMode(self.tracker) if self.tracker is not None else self.outer,
-            InnerLoop(self.map_angles), HoldMode()]
+        acquire = [] if self.acquisition is None else [AcquireMode(self.acquisition, self.tracker)]
+        # with a curve (the map closed on measured O) no surrogate: the angles hold instead
+        loops = ([TrackMode(self.tracker)] if self.tracker is not None  # inner_loop_hold.md
+                 else [self.outer, InnerLoop(self.map_angles)])
+        self.modes: list[Mode] = [*acquire, *loops, HoldMode()]
 
     def fresh(self) -> DLMPCController:
         """A controller with the same models and settings and no history."""

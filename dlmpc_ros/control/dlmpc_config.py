@@ -43,8 +43,9 @@ class AcquisitionConfig:
 class TrackingConfig:
     """Settings of the curve tracker (times in control periods; ``s`` in K's units)."""
 
-    start: float = setting(-0.1, 'curve parameter where tracking starts after the inner '
-                           'loop (K units; a point that locks from most pulses)', -1.0, 1.0)
+    start: float = setting(-0.1, 'curve parameter where tracking starts after locked '
+                           'periods without a scan (K units; a point that locks from most '
+                           'pulses)', -1.0, 1.0)
     dither: float = setting(0.03, 'half-amplitude of the dither on the curve parameter '
                             '(K units)', 1e-9, 1.0)
     block: int = setting(3, 'control periods per dither half', 1, 10_000)
@@ -56,13 +57,13 @@ class TrackingConfig:
         1.0, "the estimate moves only when the dither's O difference passes this many "
         'standard deviations of the measurement noise read off the run (0: off; '
         'bench/results/noise_deadband.md)', 0.0, 10.0)
-    entry_patience: int = setting(3, 'locked control periods under the inner loop before '
+    entry_patience: int = setting(3, 'locked control periods (angles held) before '
                                   'tracking takes over', 1, 1_000_000)
     settle: int = setting(20, 'control periods after entry before the guard judges O (for '
                           '2 x block periods) and the dither\'s comparisons count',
                           0, 1_000_000)
-    guard: float = setting(0.85, 'right after an entry, hand back to the inner loop when O '
-                           'falls below this x the O at entry', 1e-6, 1.0)
+    guard: float = setting(0.85, 'right after an entry, stop tracking (hold the angles) '
+                           'when O falls below this x the O at entry', 1e-6, 1.0)
     guard_periods: int = setting(3, 'consecutive control periods under the guard that hand '
                                  'back', 1, 1_000_000)
     mirror_margin: float = setting(0.03, 'how far past K = 0 the estimate must go before '

@@ -73,8 +73,8 @@ TRACKER_TRANSITIONS = frozenset({
 
 
 class CurveTracker:
-    """Per control period: None while the inner loop is in charge, else the angles (4,)
-    [rad] on the curve.
+    """Per control period: None while not tracking (the controller holds the angles), else
+    the angles (4,) [rad] on the curve.
 
     ``grid`` (n,) increasing curve parameters, ``angles`` (n, 4) [rad] the curve, continuous
     along it; ``threshold`` the O at which the laser counts as locked; ``expected`` (n,)

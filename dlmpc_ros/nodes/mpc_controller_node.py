@@ -1,6 +1,7 @@
-"""mpc_controller: the DL-MPC controller (MP-RNN planning, VAE surrogate + map inner loop,
-a lock acquisition scan while the laser is off its pulse, curve tracking once locked, and
-turns of the curve planned with the steady-response predictor).
+"""mpc_controller: the DL-MPC controller (a lock acquisition scan while the laser is off its
+pulse, curve tracking once locked, turns of the curve planned with the steady-response
+predictor, the angles held otherwise; ``strategy:=paper``: the VAE surrogate + map inner loop
+and MP-RNN planning).
 
 Subscribes ``/laser/state`` and ``/estimator/birefringence``; once per decision (at least a
 period apart, once the laser reports its last command reached: ``ros/controller_base.py``)
@@ -90,7 +91,7 @@ SETTING_DESCRIPTIONS, RANGES = _described((
 DESCRIPTIONS = {
     **SETTING_DESCRIPTIONS,
     'strategy': f'one of {STRATEGIES}: dlmpc, the shipped controller (lock acquisition, '
-                'curve tracking, planned turns, the VAE + map before the first lock); paper, '
+                'curve tracking, planned turns, the angles held otherwise); paper, '
                 'the paper\'s DL-MPC alone (VAE + map inner loop, MP-RNN outer loop; the '
                 'acquire, track and plan parameters are then ignored)',
     'acquire': 'scan for mode-locking while the measured O says the laser is off its pulse',

@@ -111,3 +111,20 @@ def test_after_a_poor_forecast_the_predictor_is_no_longer_scored():
         angles = step.angles
     assert np.isfinite(errors[need])
     assert np.isnan(errors[need + 1:]).all()
+
+
+def test_with_a_curve_the_surrogate_moves_nothing_and_the_angles_hold_until_tracking():
+    grid = np.linspace(-0.3, 0.3, 61)
+    curve = (grid, np.stack([2 * grid, 0.1 + 0 * grid, -0.2 + grid, 0.3 + 0 * grid], axis=1),
+             np.full(61, 0.2))
+    base = _controller(error_threshold=1e6)
+    ctrl = DLMPCController(base.kmap, base.model, base.config, target_objective=0.2,
+                           curve=curve)
+    assert [mode.name for mode in ctrl.modes] == ['acquire', 'track', 'hold']
+    angles = np.array([0.1, -0.2, 0.3, 0.4])
+    patience = ctrl.config.tracking.entry_patience
+    for surrogate in [0.5, -1.0, None][:patience - 1]:  # locked (O = 0.2), not yet tracking
+        step = ctrl.step(np.r_[6.0, 30.0, angles], surrogate)
+        assert step.mode == 'hold'
+        np.testing.assert_array_equal(step.angles, angles)
+    assert ctrl.step(np.r_[6.0, 30.0, angles], 0.5).mode == 'track'

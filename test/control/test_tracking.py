@@ -205,7 +205,7 @@ def _drive_mirrored(tracker: CurveTracker, k_of_period, periods: int,
 
 
 def test_tracker_turns_to_the_mirror_twin_when_k_drifts_through_zero():
-    # entered from the inner loop; the entry's own trial of the twin is another test's
+    # entered without the scan; the entry's own trial of the twin is another test's
     cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, entry_trial_after=NEVER)
     drift = lambda t: -0.15 + 0.3 * min(t / 2500, 1.0)          # noqa: E731
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
@@ -233,8 +233,7 @@ def test_tracker_turns_to_the_mirror_twin_when_k_drifts_through_zero():
 
 def test_the_guard_judges_entries_only_not_the_end_of_a_branch_turn():
     """A branch turn ending late in a run is judged by its own rule: a fall of O after it
-    leaves the tracker on (the scan takes over if the pulse goes), not handed to the inner
-    loop."""
+    leaves the tracker on (the scan takes over if the pulse goes), not stopped."""
     cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, entry_trial_after=NEVER)
     drift = lambda t: -0.15 + 0.3 * min(t / 2500, 1.0)          # noqa: E731
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
@@ -256,7 +255,7 @@ def test_where_the_estimate_says_nothing_a_fall_of_o_makes_the_tracker_try_the_t
     """A laser whose O does not change along the curve (on other cavities the best point
     often sits at the curve's end whatever K is): the estimate never leaves its start, K
     drifts through 0, O falls on the curve, and the tracker tries the twin and keeps it."""
-    # entered from the inner loop; the entry's own trial of the twin is another test's
+    # entered without the scan; the entry's own trial of the twin is another test's
     cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, entry_trial_after=NEVER)
     drift = lambda t: -0.15 + 0.35 * min(t / 2500, 1.0)          # noqa: E731
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
@@ -321,20 +320,20 @@ def test_after_an_acquisition_lock_the_tracker_tries_the_other_branch_once():
     assert doubtful.branch == -1
 
 
-def test_an_entry_from_the_inner_loop_tries_the_other_branch_too():
-    """The laser locked under the inner loop and tracking began at ``start`` on the curve,
+def test_an_entry_without_the_scan_tries_the_other_branch_too():
+    """The laser locked at held angles (no scan) and tracking began at ``start`` on the curve,
     the weaker branch at K = 0.15: the entry trial finds the twin; without it the tracker
     stays."""
     cfg = TrackingConfig(settle=5, start=-0.1, trial_drop=0.0, mirror_margin=0.5,
                          entry_patience=1)
-    for inner, branch in ((True, -1), (False, 1)):
-        after = cfg.entry_trial_after if inner else NEVER
+    for trial, branch in ((True, -1), (False, 1)):
+        after = cfg.entry_trial_after if trial else NEVER
         tracker = CurveTracker(GRID, ANGLES, threshold=0.1,
                                config=replace(cfg, entry_trial_after=after))
         o, _, _ = _drive_mirrored(tracker, lambda t: 0.15, 300, curvature=0.0)
-        assert tracker.active and tracker.branch == branch, inner
-        assert tracker.turner.made + tracker.turner.rejected == int(inner)
-        assert (np.mean(o[-50:]) > 0.195) == inner
+        assert tracker.active and tracker.branch == branch, trial
+        assert tracker.turner.made + tracker.turner.rejected == int(trial)
+        assert (np.mean(o[-50:]) > 0.195) == trial
 
 
 def test_a_turn_that_loses_the_pulse_is_turned_back_and_tried_the_other_way():

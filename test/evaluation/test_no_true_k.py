@@ -33,8 +33,8 @@ def test_replayed_measurements_give_the_same_decisions_without_the_true_k(name, 
     models = models_dir()
     spec = RunSpec('random_walk', 1, name, round_trips=ROUND_TRIPS, plant=PLANT)
     record = run_fast(spec, models)
-    if name == 'dlmpc':  # the replay covers the inner loop, the tracker and the planner
-        assert {MODES.index(m) for m in ('inner', 'track', 'plan')} <= set(record.mode.tolist())
+    if name == 'dlmpc':  # the replay covers holding, the tracker and the planner
+        assert {MODES.index(m) for m in ('hold', 'track', 'plan')} <= set(record.mode.tolist())
     # the true K changes: another drift and laser run in the process before the replay ...
     run_fast(RunSpec('steps', 3, name, round_trips=200), models)
     # ... and then it is gone: no scenario can be built or asked, no laser stepped

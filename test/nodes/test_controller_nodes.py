@@ -175,7 +175,7 @@ def test_mpc_controller_tracks_the_curve_once_locked_even_without_estimates(
     commands = probe.listen(itf.TOPIC_ANGLES_CMD)
     node = _start_mpc(probe, ros_env, tmp_path, 'estimator_timeout:=0.2', 'max_step:=3.0')
     try:
-        # A locked laser (O = 3.2 / 18 is above the lock level): inner loop, then tracking.
+        # A locked laser (O = 3.2 / 18 is above the lock level): held, then tracking.
         patience = TrackingConfig().entry_patience
         _periods(probe, status, range(10, 10 * patience + 1, 10), commands=commands)
         # The estimator falls silent: tracking needs no estimate and goes on.
@@ -185,7 +185,7 @@ def test_mpc_controller_tracks_the_curve_once_locked_even_without_estimates(
         assert node.stop() == 0
     rows = [list(m.data) for m in status]
     modes = [MODES[int(row[1])] for row in rows]
-    assert modes[:patience - 1] == ['inner'] * (patience - 1)
+    assert modes[:patience - 1] == ['hold'] * (patience - 1)
     assert modes[patience - 1:] == ['track'] * (len(rows) - patience + 1)
     grid, angles, _ = load_curve(ROOT / 'models' / 'track_curve.npz')
     for row, cmd in zip(rows[patience - 1:], commands[patience - 1:]):
@@ -228,7 +228,8 @@ def test_mpc_controller_scans_for_lock_while_the_laser_is_off_its_pulse(
         _periods(probe, status, [10, 20, 30, 40, 50], e=0.3, m=30.0,  # O = 0.01: no pulse
                  commands=commands)
         modes = [MODES[int(m.data[1])] for m in status]
-        assert modes == (['inner'] * 2 + ['acquire'] * 3 if acquire else ['inner'] * 5)
+        # with a curve no inner loop: the angles hold until the scan starts (or for good)
+        assert modes == (['hold'] * 2 + ['acquire'] * 3 if acquire else ['hold'] * 5)
     finally:
         assert node.stop() == 0
 
