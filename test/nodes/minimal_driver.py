@@ -4,9 +4,9 @@
 /laser/objective every round trip and applies /laser/angles_cmd through servos that
 start 3 round trips after a command and turn 0.1 rad per round trip, with an encoder of
 0.05 degree steps and 1 % detector noise. Its "laser" is a stand-in: E falls off with
-the distance of the angles from a best setting, M is constant. It prints one line per
-command it applies (``command R T ...``: the round trip it arrived at, the wall-clock
-time [s]) and, at exit, ``commands N``.
+the distance of the angles from a best setting, where it starts (locked); M is constant.
+It prints one line per command it applies (``command R T ...``: the round trip it arrived
+at, the wall-clock time [s]) and, at exit, ``commands N``.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ class MinimalDriver(Node):
     def __init__(self, rate: float) -> None:
         super().__init__('minimal_driver')
         self.round_trip, self.commands = 0, 0
-        self.angles, self.target, self.wait = [0.3, 0.0, 0.2, 0.1], [0.3, 0.0, 0.2, 0.1], 0
+        self.angles, self.target, self.wait = list(BEST), list(BEST), 0  # starts locked
         self.random = random.Random(1)
         self.state = self.create_publisher(Float64MultiArray, '/laser/state', STREAM)
         self.objective = self.create_publisher(Float64MultiArray, '/laser/objective', STREAM)

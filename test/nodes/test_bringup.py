@@ -348,8 +348,8 @@ def test_the_dlmpc_controls_a_driver_written_from_the_contract_alone(ros_env, tm
     """test/nodes/minimal_driver.py imports no dlmpc_ros: a free-running laser of 200 round
     trips/s with servos that start 3 round trips late and turn 0.1 rad per round trip, a
     quantized encoder and noisy detectors. ``bringup --nodes ''`` runs the estimator and
-    the DL-MPC against it; each decision waits until the reported angles reach the last
-    command."""
+    the DL-MPC against it (its laser starts locked: the DL-MPC moves onto its curve, then
+    scans); each decision waits until the reported angles reach the last command."""
     import re
     import signal
     import time
