@@ -12,6 +12,8 @@ from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.learning.kmap import KMap, KMapConfig
 from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
 
+from test.control.toy_curve import GRID, toy_curve
+
 
 def _map(s: float) -> np.ndarray:
     return np.array([0.1 * s, -0.1 * s, 0.2, 0.0])
@@ -114,16 +116,14 @@ def test_dlmpc_scans_within_the_servo_limits_while_unlocked():
 
 
 def test_with_a_tracking_curve_the_scan_visits_the_curve_and_its_twin_and_tracking_starts_there():
-    grid = np.linspace(-0.3, 0.3, 61)
-    curve = (grid, np.stack([2 * grid, 0.1 + 0 * grid, -0.2 + grid, 0.3 + 0 * grid], axis=1),
-             np.full(61, 0.2))
+    curve = toy_curve()
     kmap = KMap(KMapConfig(hidden=16), generator=torch.Generator().manual_seed(0))
     mprnn = MPRNN(MPRNNConfig(window=2, horizon=4, n_hidden=16, n_latent=8))
     acquisition = AcquisitionConfig(patience=2, dwell_periods=2)
     config = DLMPCConfig(acquisition=acquisition, error_threshold=1e6,
                          limits=AngleLimits(max_step=10.0))  # servos arrive at once
     ctrl = DLMPCController(kmap, mprnn, config, target_objective=0.2, curve=curve)
-    first = curve[1][np.searchsorted(grid, -0.25 - 1e-9)]     # c(-0.25)
+    first = curve[1][np.searchsorted(GRID, -0.25 - 1e-9)]     # c(-0.25)
     twin = first + np.pi / 2                                   # its twin, estimate 0.25
     angles = twin + 0.05  # nearer the twin than the curve point: the twin is scanned first
     targets = []

@@ -12,11 +12,15 @@ from dlmpc_ros.control.limits import AngleLimits
 from dlmpc_ros.learning.kmap import KMap, KMapConfig
 from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
 
+from test.control.toy_curve import toy_curve
 
-def _controller(**config) -> DLMPCController:
+
+def _controller(curve=None, **config) -> DLMPCController:
+    """Small untrained models; with ``curve`` also a lock level (O 0.2 x 0.5)."""
     kmap = KMap(KMapConfig(hidden=16), generator=torch.Generator().manual_seed(0))
     mprnn = MPRNN(MPRNNConfig(window=2, horizon=4, n_hidden=16, n_latent=8))
-    return DLMPCController(kmap, mprnn, DLMPCConfig(**config))
+    return DLMPCController(kmap, mprnn, DLMPCConfig(**config), curve=curve,
+                           target_objective=None if curve is None else 0.2)
 
 
 def _measurement(rng, angles):
@@ -114,12 +118,7 @@ def test_after_a_poor_forecast_the_predictor_is_no_longer_scored():
 
 
 def test_with_a_curve_the_surrogate_moves_nothing_and_the_angles_hold_until_tracking():
-    grid = np.linspace(-0.3, 0.3, 61)
-    curve = (grid, np.stack([2 * grid, 0.1 + 0 * grid, -0.2 + grid, 0.3 + 0 * grid], axis=1),
-             np.full(61, 0.2))
-    base = _controller(error_threshold=1e6)
-    ctrl = DLMPCController(base.kmap, base.model, base.config, target_objective=0.2,
-                           curve=curve)
+    ctrl = _controller(toy_curve(), error_threshold=1e6)
     assert [mode.name for mode in ctrl.modes] == ['acquire', 'track', 'hold']
     angles = np.array([0.1, -0.2, 0.3, 0.4])
     patience = ctrl.config.tracking.entry_patience

@@ -10,6 +10,8 @@ from dlmpc_ros.control.tracking import CurveTracker
 from dlmpc_ros.learning.fit import fit
 from dlmpc_ros.learning.response import ResponseEnsemble, ResponseModelConfig
 
+from test.control.toy_curve import ANGLES, GRID
+
 
 def test_a_move_turns_the_rotation_at_its_point_by_exactly_that_much():
     rotation = CurveRotation(-0.3, 0.3, knots=7, limit=1.0)
@@ -199,10 +201,8 @@ def test_a_move_not_yet_judged_can_be_retracted_once(toy_model):
 
 def _toy_tracker(config: TrackingConfig,
                  planner: RotationPlanner | None = None) -> CurveTracker:
-    """A tracker on a straight toy curve over K in [-0.3, 0.3], locked above O = 0.1."""
-    grid = np.linspace(-0.3, 0.3, 61)
-    curve = np.stack([2 * grid, 0.1 + 0 * grid, -0.2 + grid, 0.3 + 0 * grid], axis=1)
-    return CurveTracker(grid, curve, threshold=0.1, config=config, planner=planner)
+    """A tracker on the toy curve, locked above O = 0.1."""
+    return CurveTracker(GRID, ANGLES, threshold=0.1, config=config, planner=planner)
 
 
 def test_a_turn_that_loses_the_laser_before_it_is_judged_is_taken_back(toy_model):

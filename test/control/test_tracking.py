@@ -16,12 +16,11 @@ from dlmpc_ros.core.symmetry import QUARTER_TURN
 from dlmpc_ros.learning.kmap import KMap, KMapConfig
 from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
 
+from test.control.toy_curve import ANGLES, GRID
+
 #: ``entry_trial_after`` that never comes: tests of other turns leave the entry trial out
 NEVER = 1_000_000  # the largest the setting takes
 
-GRID = np.linspace(-0.3, 0.3, 61)
-#: A toy curve whose first angle is twice its parameter, so a command tells its s.
-ANGLES = np.stack([2 * GRID, 0.1 + 0 * GRID, -0.2 + GRID, 0.3 + 0 * GRID], axis=1)
 
 
 def _objective(angles: np.ndarray, k: float) -> float:
