@@ -38,8 +38,8 @@ NOT_CONTROL_LAW = {'__init__.py', 'esc.py', 'ga.py', 'bo.py', 'drl.py', 'observa
 #: ``learning/features.py`` and ``learning/mprnn.py``). The node's own module
 #: (``nodes/mpc_controller_node.py``) is not among them: it turns parameters into a
 #: controller at start, and the callback, the decision and the publishing are its base
-#: class's; nor are the settings
-#: (``control/dlmpc_config.py``), which the modules read but which do nothing.
+#: class's; nor are the settings (``control/dlmpc_config.py``), which the modules read
+#: but which do nothing.
 PER_PERIOD = ('ros/controller_base.py',
               'control/period_measurement.py', 'control/dlmpc.py',
               'control/acquisition.py', 'control/tracking.py', 'control/branch_turn.py',
