@@ -34,7 +34,7 @@ CONTROL = ROOT / 'dlmpc_ros' / 'control'
 NOT_CONTROL_LAW = {'__init__.py', 'esc.py', 'ga.py', 'bo.py', 'drl.py', 'observation.py',
                    'baselines.py', 'plugins.py', 'factory.py'}
 #: Modules a control period of the default strategy runs through, callback to published
-#: command (the paper's loops add ``control/planner.py``, ``learning/kmap.py``,
+#: command (the paper's loops add ``control/paper_loops.py``, ``learning/kmap.py``,
 #: ``learning/features.py`` and ``learning/mprnn.py``). The node's own module
 #: (``nodes/mpc_controller_node.py``) is not among them: it turns parameters into a
 #: controller at start, and the callback, the decision and the publishing are its base

@@ -5,8 +5,8 @@ laser is locked while O = E/M is at the lock threshold and at ``RELOCK_FRACTION`
 recent best (decaying by ``LEVEL_DECAY`` per period). After ``patience`` unlocked periods
 (``relock_patience`` once locked) the supervisor scans the points of a :class:`ScanSource`
 (the tracking curve and its twin, :class:`~dlmpc_ros.control.tracking.CurveScan`; without a
-curve, :class:`MapScan`) until O locks, then hands back to the modes, told where
-(:attr:`LockSupervisor.locked_at`).
+curve, :class:`~dlmpc_ros.control.paper_loops.MapScan`) until O locks, then hands back to
+the modes, told where (:attr:`LockSupervisor.locked_at`).
 Where a point's field has died, the scan seeds it: it turns the half-wave plate on through
 its period at the servos' speed; a strong CW field builds on the way and forms a pulse back
 at the point's setting (an NPR laser started by hand; ``bench/results/scan_sweep.md``).
@@ -15,9 +15,7 @@ at the point's setting (an NPR laser started by hand; ``bench/results/scan_sweep
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
 from dataclasses import dataclass, field
-from statistics import NormalDist
 from typing import Protocol
 
 import numpy as np
@@ -28,8 +26,6 @@ from dlmpc_ros.core.angles import wrap_angles
 from dlmpc_ros.core.symmetry import HALF_WAVE, QUARTER_TURN
 
 
-#: Surrogate values the map scan visits (equal-probability quantiles of the VAE prior).
-SCAN_POINTS = 9
 #: Largest angle gap [rad] at which the servos count as arrived at a scan point.
 ARRIVE_TOLERANCE = 1e-3
 #: Periods after which a scan point counts as reached anyway (a point outside the limits).
@@ -69,30 +65,6 @@ class ScanSource(Protocol):
 
     def note_locked(self, surrogate: float) -> None:
         """A locked period, with the estimator's surrogate for it (NaN: none)."""
-
-
-def scan_surrogates(points: int) -> np.ndarray:
-    """(points,) surrogates to scan: equal-probability quantiles of N(0, 1), the VAE prior."""
-    normal = NormalDist()
-    return np.array([normal.inv_cdf((i + 0.5) / points) for i in range(points)])
-
-
-class MapScan:
-    """The map's angles at ``points`` VAE-prior quantiles, nearest the last locked first."""
-
-    def __init__(self, map_angles: Callable[[float], np.ndarray], points: int) -> None:
-        self.map_angles = map_angles
-        self.surrogates = scan_surrogates(points)
-        self.last_surrogate = 0.0
-
-    def pass_order(self, current: np.ndarray) -> list[ScanPoint]:
-        order = np.argsort(np.abs(self.surrogates - self.last_surrogate))
-        return [ScanPoint(np.asarray(self.map_angles(float(self.surrogates[i])), float))
-                for i in order]
-
-    def note_locked(self, surrogate: float) -> None:
-        if np.isfinite(surrogate):
-            self.last_surrogate = float(surrogate)
 
 
 class LockSupervisor:

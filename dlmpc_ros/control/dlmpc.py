@@ -1,37 +1,33 @@
 """The DL-MPC controller (paper section 3D): a supervisor over its modes.
 
 Each control period it takes the period's measurement ``(E, M, alpha[4])``
-(:mod:`~dlmpc_ros.control.period_measurement`) and the VAE's K surrogate for it, asks its
-modes in priority order (one object per way of choosing the angles, each with one verb:
-``decide(period)`` returns a :class:`Decision` or None to pass; the modes after the one
-that decides ``stand_down``, dropping what they had under way), and the first that decides
-sets the next angles (within the servo limits):
+(:mod:`~dlmpc_ros.control.period_measurement`), asks its modes in priority order (each
+with one verb: ``decide(period)`` returns a :class:`Decision` or None to pass; the modes
+after the one that decides ``stand_down``), and the first that decides sets the next
+angles (within the servo limits):
 
 1. ``acquire``: while O says the laser is off its pulse, scan for a lock
    (:mod:`~dlmpc_ros.control.acquisition`);
 2. ``track``: once locked, follow K along the learned curve by the measured O
-   (:mod:`~dlmpc_ros.control.tracking`); without a curve (``strategy:=paper``) the
-   ``outer`` loop instead: MP-RNN plans of the next N angle sets by gradient ascent on
-   the predicted O, the first applied, re-planned each period
-   (:mod:`~dlmpc_ros.control.planner`), while its one-step forecasts are accurate;
-3. ``inner`` (without a curve only): the surrogate through the K-to-angles map;
-4. ``hold``: keep the angles (with a curve: whenever the tracker is not in charge).
+   (:mod:`~dlmpc_ros.control.tracking`); without a curve (``strategy:=paper``) the paper's
+   ``outer`` (MP-RNN plans) and ``inner`` (surrogate to map) loops instead
+   (:mod:`~dlmpc_ros.control.paper_loops`);
+3. ``hold``: keep the angles (with a curve: whenever the tracker is not in charge).
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
-from dlmpc_ros.control.acquisition import CURVE_POINTS, SCAN_POINTS, LockSupervisor, MapScan
+from dlmpc_ros.control.acquisition import CURVE_POINTS, LockSupervisor
 from dlmpc_ros.control.dlmpc_config import AcquisitionConfig, DLMPCConfig
-from dlmpc_ros.control.planner import PredictionMonitor, solve_plan
+from dlmpc_ros.control.paper_loops import (SCAN_POINTS, InnerLoop, MapScan, OuterLoop,
+                                           PredictionMonitor)
 from dlmpc_ros.control.rotation_planner import RotationPlanner
-from dlmpc_ros.control.step import ControlStep, implausible
+from dlmpc_ros.control.step import ControlStep, Decision, Mode, Period, implausible
 from dlmpc_ros.control.tracking import CurveScan, CurveTracker
 from dlmpc_ros.learning.kmap import KMap
 from dlmpc_ros.learning.mprnn import MPRNN
@@ -40,44 +36,6 @@ from dlmpc_ros.learning.response import ResponseEnsemble
 #: Largest |surrogate| taken as an estimate (the VAE's latent means lie within a few
 #: units); a larger one, however finite, counts as no estimate.
 SURROGATE_LIMIT = 1e3
-
-
-@dataclass(frozen=True)
-class Period:
-    """What the supervisor knows in one control period."""
-
-    current: np.ndarray  # (4,) angles applied during the period [rad]
-    objective: float     # measured O = E / M (NaN where M <= 0)
-    surrogate: float     # the estimator's K surrogate for the measurement (NaN: none)
-    energy: float        # measured E
-
-
-@dataclass(frozen=True)
-class Decision:
-    """A mode's choice for the next period (the supervisor applies the servo limits)."""
-
-    angles: np.ndarray            # (4,) wanted angles [rad]
-    mode: str                     # name of the mode that decided
-    surrogate: float | None = None  # the estimate to report (None: the period's surrogate)
-    #: (N,) predicted O over the horizon, the plan's iterations, and the (2,) normalized
-    #: state it predicts for the end of the next period (the outer loop's plans only)
-    predicted_objective: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    iterations: int = 0
-    predicted_next: torch.Tensor | None = None
-    travel: bool = False  # the angles only move the servos on (no measurement needed there)
-
-
-class Mode:
-    """One way of choosing the angles."""
-
-    name = ''
-
-    def decide(self, period: Period) -> Decision | None:
-        """The angles for the next period, or None to pass to the next mode."""
-        raise NotImplementedError
-
-    def stand_down(self) -> None:
-        """A mode before this one acted: drop what was under way (by default, nothing)."""
 
 
 class AcquireMode(Mode):
@@ -120,55 +78,6 @@ class TrackMode(Mode):
         self.tracker.interrupt()
 
 
-class OuterLoop(Mode):
-    """MP-RNN planning (receding horizon); passes (dropping its plan) while the history is
-    short or the recent error is over ``config.error_threshold`` (then it stays off)."""
-
-    name = 'outer'
-
-    def __init__(self, monitor: PredictionMonitor, config: DLMPCConfig) -> None:
-        self.monitor = monitor
-        self.config = config
-        self.plan: torch.Tensor | None = None             # (N, 4) remaining plan
-
-    def decide(self, period: Period) -> Decision | None:
-        if not self.monitor.full or self.monitor.recent_error > self.config.error_threshold:
-            self.stand_down()
-            return None
-        return self._solve(period)
-
-    def stand_down(self) -> None:
-        self.plan = None
-
-    def _solve(self, period: Period) -> Decision:
-        model = self.monitor.model
-        history = self.monitor.history_batch()                      # (1, N + 2b, 10)
-        if self.plan is None:
-            with torch.no_grad():
-                seed = model(history).u[0]                          # (N, 4) from the map
-        else:
-            seed = torch.cat([self.plan[1:], self.plan[-1:]])       # shift the old plan
-        result = solve_plan(model, history, seed, period.current, self.monitor.iterations,
-                            self.config.learning_rate, self.config.limits)
-        self.plan = result.plan
-        return Decision(result.first, self.name, predicted_objective=result.predicted_objective,
-                        iterations=result.iterations, predicted_next=result.predicted_next)
-
-
-class InnerLoop(Mode):
-    """The estimator's surrogate through the K-to-angles map (passes without one)."""
-
-    name = 'inner'
-
-    def __init__(self, map_angles: Callable[[float], np.ndarray]) -> None:
-        self.map_angles = map_angles
-
-    def decide(self, period: Period) -> Decision | None:
-        if not np.isfinite(period.surrogate):
-            return None
-        return Decision(self.map_angles(period.surrogate), self.name)
-
-
 class HoldMode(Mode):
     """Keep the angles (the last resort: no surrogate)."""
 
@@ -189,9 +98,6 @@ class DLMPCController:
     """
 
     name = 'dlmpc'
-    #: The harnesses (fast runs, the lock benchmark, the controller nodes) give it the VAE
-    #: estimator's surrogate with each measurement.
-    uses_estimator = True
 
     def __init__(self, kmap: KMap, mprnn: MPRNN, config: DLMPCConfig | None = None,
                  target_objective: float | None = None,
@@ -229,18 +135,20 @@ class DLMPCController:
                       else CurveScan(self.tracker, CURVE_POINTS))
             self.acquisition = LockSupervisor(lock_fraction * target_objective, source,
                                               cfg.acquisition, cfg.limits)
-        # with a tracker the MP-RNN does not plan (module docstring, point 3), and nothing
-        # scores its forecasts
+        # with a curve (the map closed on measured O) the paper's loops do not run: no plans,
+        # no surrogate, the angles hold instead (stress_ablation.md, inner_loop_hold.md)
         self.monitor: PredictionMonitor | None = None
         self.outer: OuterLoop | None = None
         if self.tracker is None:
             self.monitor = PredictionMonitor(mprnn, cfg)
             self.outer = OuterLoop(self.monitor, cfg)
         acquire = [] if self.acquisition is None else [AcquireMode(self.acquisition, self.tracker)]
-        # with a curve (the map closed on measured O) no surrogate: the angles hold instead
-        loops = ([TrackMode(self.tracker)] if self.tracker is not None  # inner_loop_hold.md
+        loops = ([TrackMode(self.tracker)] if self.tracker is not None
                  else [self.outer, InnerLoop(self.map_angles)])
         self.modes: list[Mode] = [*acquire, *loops, HoldMode()]
+        #: Only the paper's loops read the VAE's surrogate: the harnesses and the node then
+        #: give it one with each measurement (the node waits for it).
+        self.uses_estimator = self.tracker is None
 
     def fresh(self) -> DLMPCController:
         """A controller with the same models and settings and no history."""

@@ -1,11 +1,15 @@
-"""What every controller returns for one control period, and the protocol they share."""
+"""What every controller returns for one control period, and the protocol they share; what
+the DL-MPC's modes (:mod:`~dlmpc_ros.control.dlmpc`) take and return in one."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import torch
 
 #: Modes a controller reports (``plan``: tracking periods with a planned turn; ``custom``: a
 #: plug-in's own, docs/controllers.md). The index is published: a new mode goes at the end.
@@ -66,3 +70,41 @@ class Controller(Protocol):
 
     def step(self, measurement: np.ndarray, surrogate: float | None = None) -> ControlStep:
         ...
+
+
+@dataclass(frozen=True)
+class Period:
+    """What the supervisor knows in one control period."""
+
+    current: np.ndarray  # (4,) angles applied during the period [rad]
+    objective: float     # measured O = E / M (NaN where M <= 0)
+    surrogate: float     # the estimator's K surrogate for the measurement (NaN: none)
+    energy: float        # measured E
+
+
+@dataclass(frozen=True)
+class Decision:
+    """A mode's choice for the next period (the supervisor applies the servo limits)."""
+
+    angles: np.ndarray            # (4,) wanted angles [rad]
+    mode: str                     # name of the mode that decided
+    surrogate: float | None = None  # the estimate to report (None: the period's surrogate)
+    #: (N,) predicted O over the horizon, the plan's iterations, and the (2,) normalized
+    #: state it predicts for the end of the next period (the outer loop's plans only)
+    predicted_objective: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    iterations: int = 0
+    predicted_next: torch.Tensor | None = None
+    travel: bool = False  # the angles only move the servos on (no measurement needed there)
+
+
+class Mode:
+    """One way of choosing the angles."""
+
+    name = ''
+
+    def decide(self, period: Period) -> Decision | None:
+        """The angles for the next period, or None to pass to the next mode."""
+        raise NotImplementedError
+
+    def stand_down(self) -> None:
+        """A mode before this one acted: drop what was under way (by default, nothing)."""

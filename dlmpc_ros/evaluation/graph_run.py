@@ -19,7 +19,10 @@ def record_from_csv(run_csv: Path, meta: dict | None = None) -> RunRecord:
     """The record of a bringup run from ``run.csv`` and ``run.controller.csv``."""
     rows = read_run_csv(run_csv)
     decisions = read_decisions_csv(run_csv)
-    latency = decisions['latency_ms'] + np.nan_to_num(decisions['estimator_latency_ms'])
+    # the estimator's time is the decision's only where it waited for that estimate (age 0)
+    waited = decisions['estimator_age'] == 0
+    latency = decisions['latency_ms'] + np.where(
+        waited, np.nan_to_num(decisions['estimator_latency_ms']), 0.0)
     error = np.where(decisions['prediction_error'] < 0, np.nan, decisions['prediction_error'])
     surrogate = np.where(decisions['surrogate_valid'] > 0, decisions['surrogate'], np.nan)
     mode = decisions['mode'].astype(np.int64)

@@ -127,7 +127,7 @@ def run_fast(spec: RunSpec, models_dir: Path, controller: Controller | None = No
              progress: Callable[[int], None] | None = None) -> RunRecord:
     """The run in one process. ``controller`` (default: built by name from
     ``models_dir``) and ``estimator`` (default: the VAE for a controller whose
-    ``uses_estimator`` is true, the DL-MPC's) may be given, e.g.
+    ``uses_estimator`` is true: the paper's DL-MPC) may be given, e.g.
     a DL-MPC with other settings."""
     scenario = preset_scenario(spec.scenario, spec.seed, spec.settings or None)
     if controller is None:

@@ -3,10 +3,11 @@ pulse, curve tracking once locked, turns of the curve planned with the steady-re
 predictor, the angles held otherwise; ``strategy:=paper``: the VAE surrogate + map inner loop
 and MP-RNN planning).
 
-Subscribes ``/laser/state`` and ``/estimator/birefringence``; once per decision (at least a
-period apart, once the laser reports its last command reached: ``ros/controller_base.py``)
-publishes ``/controller/measurement``, ``/laser/angles_cmd`` and ``/controller/status``.
-It never reads the true K:
+Subscribes ``/laser/state`` (and, with ``strategy:=paper`` or ``track:=false``, whose inner
+loop reads the VAE's surrogate, ``/estimator/birefringence``); once per decision (at least
+a period apart, once the laser reports its last command reached:
+``ros/controller_base.py``) publishes ``/controller/measurement``, ``/laser/angles_cmd`` and
+``/controller/status``. It never reads the true K:
 it has no subscription to ``/laser/birefringence`` or ``/laser/sim_truth``, and none of
 the files it loads (``kmap.pt``, ``mprnn.pt``, ``track_curve.npz``, ``response.pt``,
 ``rotation_prior.npz``, ``turn_correction.npz``) holds the K of a run.
@@ -103,8 +104,6 @@ DESCRIPTIONS = {
 
 
 class MPCControllerNode(ControllerNodeBase):
-    uses_estimator = True
-
     def __init__(self) -> None:
         super().__init__('mpc_controller',
                          {'strategy': 'dlmpc', **DEFAULTS, **ACQUISITION_DEFAULTS,
@@ -135,6 +134,8 @@ class MPCControllerNode(ControllerNodeBase):
         except (ModelFileError, FileNotFoundError) as err:
             raise params.StartupError(str(err)) from None
         self.controller.warm_up()
+        # strategy:=paper (or track:=false) reads /controller/estimate and waits for it
+        self.uses_estimator = self.controller.uses_estimator
         self.start()
 
     def fresh_controller(self) -> DLMPCController:

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 import torch
 
-from dlmpc_ros.control.acquisition import (TRAVEL_PERIODS, WEAK_FIELD, LockSupervisor, MapScan,
-                                           ScanPoint, scan_surrogates)
+from dlmpc_ros.control.acquisition import TRAVEL_PERIODS, WEAK_FIELD, LockSupervisor, ScanPoint
 from dlmpc_ros.control.dlmpc import DLMPCController
 from dlmpc_ros.control.dlmpc_config import AcquisitionConfig, DLMPCConfig
 from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.paper_loops import MapScan, scan_surrogates
 from dlmpc_ros.learning.kmap import KMap, KMapConfig
 from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
 

@@ -54,14 +54,16 @@ def _start(module, ros_env, tmp_path, *params):
     return NodeProcess(module, ros_env, tmp_path / f'{module.rsplit(".", 1)[1]}.log', *args)
 
 
-def _start_mpc(probe, ros_env, tmp_path, *params) -> NodeProcess:
-    """The DL-MPC controller node, once it reads the probe's states and estimates (the
-    probe reads its measurements, as the estimator would)."""
+def _start_mpc(probe, ros_env, tmp_path, *params, estimates=True) -> NodeProcess:
+    """The DL-MPC controller node, once it reads the probe's states and (``estimates``: the
+    paper's loops read them) estimates; the probe reads its measurements, as the estimator
+    would."""
     probe.listen(itf.TOPIC_MEASUREMENT)
     node = _start(MPC, ros_env, tmp_path, 'period:=10', *params)
     try:
         probe.wait_matched(itf.TOPIC_STATE)
-        probe.wait_matched(itf.TOPIC_ESTIMATE)
+        if estimates:
+            probe.wait_matched(itf.TOPIC_ESTIMATE)
     except BaseException:
         node.stop()
         raise
@@ -167,20 +169,24 @@ def test_mpc_controller_acts_each_period_holds_without_estimator_and_never_reads
         assert set(curve.files) == {'grid', 'angles', 'objective', 'schema_version'}
 
 
-def test_mpc_controller_tracks_the_curve_once_locked_even_without_estimates(
+def test_mpc_controller_tracks_the_curve_once_locked_and_reads_no_estimate(
         ros_env, tmp_path, probe):
     from dlmpc_ros.control.dlmpc_config import TrackingConfig
     from dlmpc_ros.learning.curve import load_curve
     status = probe.listen(itf.TOPIC_CONTROLLER_STATUS)
     commands = probe.listen(itf.TOPIC_ANGLES_CMD)
-    node = _start_mpc(probe, ros_env, tmp_path, 'estimator_timeout:=0.2', 'max_step:=3.0')
+    # the default strategy: acquisition, tracking and hold read no surrogate, so the node
+    # neither subscribes the estimate nor waits for it (a long timeout would show)
+    node = _start_mpc(probe, ros_env, tmp_path, 'estimator_timeout:=30.0', 'max_step:=3.0',
+                      estimates=False)
     try:
+        topics = {name for name, _ in probe.node.get_subscriber_names_and_types_by_node(
+            'mpc_controller', '/')}
+        assert topics == {itf.TOPIC_STATE}
         # A locked laser (O = 3.2 / 18 is above the lock level): held, then tracking.
         patience = TrackingConfig().entry_patience
-        _periods(probe, status, range(10, 10 * patience + 1, 10), commands=commands)
-        # The estimator falls silent: tracking needs no estimate and goes on.
-        _periods(probe, status, range(10 * patience + 10, 10 * patience + 31, 10),
-                 estimate=False, commands=commands)
+        _periods(probe, status, range(10, 10 * patience + 31, 10), estimate=False,
+                 commands=commands)
     finally:
         assert node.stop() == 0
     rows = [list(m.data) for m in status]
@@ -193,7 +199,8 @@ def test_mpc_controller_tracks_the_curve_once_locked_even_without_estimates(
         gap = (np.array(cmd.data) - np.array([np.interp(row[5], grid, a) for a in angles.T])
                + np.pi / 2) % np.pi - np.pi / 2
         assert np.abs(gap).max() < 0.2  # on the curve, within the dither
-    assert rows[-1][7] > 0  # the estimator is silent and the status says so
+    assert all(row[7] == -1.0 for row in rows)  # no estimate: none expected
+    assert 'no estimate' not in node.output()
 
 
 def test_lockstep_laser_waits_for_each_command(ros_env, tmp_path, probe):
@@ -223,10 +230,10 @@ def test_mpc_controller_scans_for_lock_while_the_laser_is_off_its_pulse(
     status = probe.listen(itf.TOPIC_CONTROLLER_STATUS)
     commands = probe.listen(itf.TOPIC_ANGLES_CMD)
     node = _start_mpc(probe, ros_env, tmp_path, 'acquire_patience:=2',
-                      f'acquire:={str(acquire).lower()}')
+                      f'acquire:={str(acquire).lower()}', estimates=False)
     try:
         _periods(probe, status, [10, 20, 30, 40, 50], e=0.3, m=30.0,  # O = 0.01: no pulse
-                 commands=commands)
+                 commands=commands, estimate=False)
         modes = [MODES[int(m.data[1])] for m in status]
         # with a curve no inner loop: the angles hold until the scan starts (or for good)
         assert modes == (['hold'] * 2 + ['acquire'] * 3 if acquire else ['hold'] * 5)

@@ -232,8 +232,11 @@ def test_mpc_controller(ros_env, tmp_path, probe):
     fuzz = Fuzz(probe, [itf.TOPIC_ANGLES_CMD, itf.TOPIC_CONTROLLER_STATUS])
     status = fuzz.boxes[itf.TOPIC_CONTROLLER_STATUS]
     probe.listen(itf.TOPIC_MEASUREMENT)  # as the estimator does: the controller reads
+    # strategy:=paper reads both inputs (the default reads no estimate; its /laser/state is
+    # the same base class's, and test_fuzz_properties fuzzes the default node)
     node = _start('dlmpc_ros.nodes.mpc_controller_node', ros_env, tmp_path, 'period:=10',
-                  'estimator_timeout:=5.0', 'settle_tolerance:=1.0')  # fixed angles
+                  'estimator_timeout:=5.0', 'settle_tolerance:=1.0',  # fixed angles
+                  'strategy:=paper')
     try:
         probe.wait_matched(itf.TOPIC_STATE)
         probe.wait_matched(itf.TOPIC_ESTIMATE)

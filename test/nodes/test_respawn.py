@@ -153,29 +153,13 @@ def test_respawn_restarts_killed_nodes_while_the_laser_runs_on(ros_env, tmp_path
             f'no mode-locking ({what}) within {RELOCK_WITHIN} round trips after {victim} '
             f'came back at round trip {kill.back}; O there: {run["O"][kill.back - 1:][:500:50]}')
         if victim == 'vae_estimator':
-            # States after the kill get no estimate until the new estimator runs: the
-            # controller tracks the curve and its planner turns it (neither needs the
-            # estimator: they report the tracker's own estimate), or holds, plans with the
-            # MP-RNN or scans for lock without a surrogate, and says so; then estimates
-            # are back.
-            # The probe's clock (``killed``) can lag the laser's under load, so the window
-            # may begin with decisions made before the kill: the estimator's absence is
-            # the longest run of decisions without a fresh estimate in it.
+            # The default strategy reads no estimate (strategy:=paper does:
+            # test_a_silent_estimator_makes_the_controller_hold_and_say_so): it decides on
+            # while the estimator is away, as before and after.
             gap = decisions[(decisions['round_trip'] > kill.killed)
                             & (decisions['round_trip'] <= kill.back)]
-            stale = np.r_[0, (gap['estimator_age'] != 0).astype(int), 0]
-            edges = np.flatnonzero(np.diff(stale))
-            starts, ends = edges[::2], edges[1::2]
-            assert starts.size, 'no decision while the estimator was away'
-            longest = int(np.argmax(ends - starts))
-            silent = gap[starts[longest]:ends[longest]]
-            returned = int(ends[longest])
-            assert (gap['surrogate_valid'][returned:] == 1).all()
-            modes = {MODES[int(m)] for m in silent['mode']}
-            assert modes <= {'hold', 'outer', 'acquire', 'track', 'plan'}, modes
-            tracker = [MODES.index('track'), MODES.index('plan')]
-            untracked = silent[~np.isin(silent['mode'], tracker)]
-            assert (untracked['surrogate_valid'] == 0).all()
+            assert gap.size, 'no decision while the estimator was away'
+            assert (decisions['estimator_age'] == -1).all()
         if victim == 'drift_injector':  # meanwhile K stood still, then moves again
             moves = np.flatnonzero(np.diff(run['K'][kill.killed + 20:kill.back + 200]))
             assert moves.size and moves[0] >= 30, f'K changes at {kill.killed + 20 + moves}'

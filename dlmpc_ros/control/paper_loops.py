@@ -1,24 +1,30 @@
-"""The paper's outer loop (section 3D): receding-horizon plans of the MP-RNN.
-
-:func:`solve_plan` runs gradient ascent of the MP-RNN's predicted objective over N future
-angle sets; the supervisor's ``outer`` mode (:class:`~dlmpc_ros.control.dlmpc.OuterLoop`)
-plans each period while the :class:`PredictionMonitor` finds the one-step forecasts
-accurate; the default strategy, which tracks a curve, never plans with it
-(``bench/results/stress_ablation.md``).
+"""The paper's DL-MPC loops (section 3D; ``strategy:=paper``, or no tracking curve): the
+MP-RNN outer loop (:class:`OuterLoop`, receding-horizon plans by :func:`solve_plan` while
+the :class:`PredictionMonitor` finds its forecasts accurate), the inner loop
+(:class:`InnerLoop`, the VAE's surrogate through the K-to-angles map) and the scan's points
+without a curve (:class:`MapScan`). The default strategy runs none of them
+(``bench/results/stress_ablation.md``, ``bench/results/inner_loop_hold.md``).
 """
 
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import numpy as np
 import torch
 
+from dlmpc_ros.control.acquisition import ScanPoint
 from dlmpc_ros.control.dlmpc_config import ERROR_MEMORY, DLMPCConfig
 from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import Decision, Mode, Period
 from dlmpc_ros.learning.features import features
 from dlmpc_ros.learning.mprnn import MPRNN
+
+#: Surrogate values the map scan visits (equal-probability quantiles of the VAE prior).
+SCAN_POINTS = 9
 
 
 @dataclass(frozen=True)
@@ -107,3 +113,76 @@ class PredictionMonitor:
     def history_batch(self) -> torch.Tensor:
         """(1, N + 2b, 10) the history as the model's input."""
         return torch.stack(list(self.history))[None]
+
+
+class OuterLoop(Mode):
+    """MP-RNN planning (receding horizon); passes (dropping its plan) while the history is
+    short or the recent error is over ``config.error_threshold`` (then it stays off)."""
+
+    name = 'outer'
+
+    def __init__(self, monitor: PredictionMonitor, config: DLMPCConfig) -> None:
+        self.monitor = monitor
+        self.config = config
+        self.plan: torch.Tensor | None = None             # (N, 4) remaining plan
+
+    def decide(self, period: Period) -> Decision | None:
+        if not self.monitor.full or self.monitor.recent_error > self.config.error_threshold:
+            self.stand_down()
+            return None
+        return self._solve(period)
+
+    def stand_down(self) -> None:
+        self.plan = None
+
+    def _solve(self, period: Period) -> Decision:
+        model = self.monitor.model
+        history = self.monitor.history_batch()                      # (1, N + 2b, 10)
+        if self.plan is None:
+            with torch.no_grad():
+                seed = model(history).u[0]                          # (N, 4) from the map
+        else:
+            seed = torch.cat([self.plan[1:], self.plan[-1:]])       # shift the old plan
+        result = solve_plan(model, history, seed, period.current, self.monitor.iterations,
+                            self.config.learning_rate, self.config.limits)
+        self.plan = result.plan
+        return Decision(result.first, self.name, predicted_objective=result.predicted_objective,
+                        iterations=result.iterations, predicted_next=result.predicted_next)
+
+
+class InnerLoop(Mode):
+    """The estimator's surrogate through the K-to-angles map (passes without one)."""
+
+    name = 'inner'
+
+    def __init__(self, map_angles: Callable[[float], np.ndarray]) -> None:
+        self.map_angles = map_angles
+
+    def decide(self, period: Period) -> Decision | None:
+        if not np.isfinite(period.surrogate):
+            return None
+        return Decision(self.map_angles(period.surrogate), self.name)
+
+
+def scan_surrogates(points: int) -> np.ndarray:
+    """(points,) surrogates to scan: equal-probability quantiles of N(0, 1), the VAE prior."""
+    normal = NormalDist()
+    return np.array([normal.inv_cdf((i + 0.5) / points) for i in range(points)])
+
+
+class MapScan:
+    """The map's angles at ``points`` VAE-prior quantiles, nearest the last locked first."""
+
+    def __init__(self, map_angles: Callable[[float], np.ndarray], points: int) -> None:
+        self.map_angles = map_angles
+        self.surrogates = scan_surrogates(points)
+        self.last_surrogate = 0.0
+
+    def pass_order(self, current: np.ndarray) -> list[ScanPoint]:
+        order = np.argsort(np.abs(self.surrogates - self.last_surrogate))
+        return [ScanPoint(np.asarray(self.map_angles(float(self.surrogates[i])), float))
+                for i in order]
+
+    def note_locked(self, surrogate: float) -> None:
+        if np.isfinite(surrogate):
+            self.last_surrogate = float(surrogate)
