@@ -88,14 +88,11 @@ class HoldMode(Mode):
 
 
 class DLMPCController:
-    """Stateful DL-MPC controller; one :meth:`step` per control period.
-
-    ``target_objective``: the mean O of the map's training targets (the lock threshold is
-    ``acquisition.lock_fraction`` x it; None: no scan, no tracking). ``curve``: the tracking
-    curve ``(grid (n,), angles (n, 4), steady O (n,))`` (None: no tracking).
-    ``rotation_prior`` and ``turn_correction``: what a calibration bag taught
-    (:mod:`dlmpc_ros.training.adapt`).
-    """
+    """Stateful DL-MPC controller; one :meth:`step` per control period. ``target_objective``:
+    the mean O of the map's training targets (the lock threshold is ``acquisition.lock_fraction``
+    x it; None: no scan, no tracking); ``curve``: the tracking curve ``(grid (n,), angles (n, 4),
+    steady O (n,))`` (None: no tracking); ``rotation_prior`` and ``turn_correction``: what a
+    calibration bag taught (:mod:`dlmpc_ros.training.adapt`)."""
 
     name = 'dlmpc'
 
@@ -162,9 +159,8 @@ class DLMPCController:
             return self.kmap(torch.tensor([[surrogate]], dtype=torch.float32))[0].numpy()
 
     def warm_up(self) -> None:
-        """Run one forward and backward pass on zeros (no state touched), so that the first
-        real plan does not pay torch's one-off start-up cost in the middle of a run (nothing
-        to do where the MP-RNN never plans)."""
+        """One forward and backward pass on zeros (no state touched): the first real plan then
+        does not pay torch's one-off start-up cost mid-run (only where the MP-RNN plans)."""
         if self.outer is None:
             return
         history = torch.zeros(1, self.model.min_history(), 10)  # (1, N + 2b, features)

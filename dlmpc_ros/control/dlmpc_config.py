@@ -1,7 +1,6 @@
-"""The settings of the DL-MPC controller (:mod:`dlmpc_ros.control.dlmpc`), of its parts in
-the order they act (lock acquisition, curve tracking, the rotation planner), then its own:
-each with its description and range (:func:`~dlmpc_ros.core.checks.setting`), which the
-``mpc_controller`` node declares as its parameters."""
+"""The DL-MPC's settings (:mod:`dlmpc_ros.control.dlmpc`; its parts' in the order they act,
+then its own), each with its description and range (:func:`~dlmpc_ros.core.checks.setting`):
+the ``mpc_controller`` node's parameters."""
 
 from __future__ import annotations
 

@@ -45,12 +45,11 @@ class PlanResult:
 
 def solve_plan(model: MPRNN, history: torch.Tensor, seed: torch.Tensor, current: np.ndarray,
                iterations: int, learning_rate: float, limits: AngleLimits) -> PlanResult:
-    """One receding-horizon plan: improve ``seed`` (N, 4) [rad] (the previous plan shifted,
-    or the map's) by ``iterations`` Adam steps of ``learning_rate`` [rad] on ``model``'s
-    summed predicted O after ``history`` (1, N + 2b, 10), the features of the recent
-    periods (weights unchanged: it should have ``requires_grad`` off); then cut the first
-    step to what the servos reach from ``current`` (4,) [rad] (``limits``) and predict the
-    plan once more with it."""
+    """One receding-horizon plan: improve ``seed`` (N, 4) [rad] (the previous plan shifted, or
+    the map's) by ``iterations`` Adam steps of ``learning_rate`` [rad] on ``model``'s summed
+    predicted O after ``history`` (1, N + 2b, 10), the recent periods' features (weights
+    unchanged); then cut the first step to what the servos reach from ``current`` (4,)
+    [rad] (``limits``) and predict the plan once more with it."""
     plan = seed.clone().requires_grad_(True)
     optimizer = torch.optim.Adam([plan], lr=learning_rate)
     for _ in range(iterations):

@@ -61,10 +61,9 @@ def implausible(measurement: np.ndarray) -> str | None:
 
 
 class Controller(Protocol):
-    """Measurement ``(E, M, alpha1, alpha2, alpha3, alpha_p)`` in, next angles out.
-
-    ``surrogate``: the estimator's K surrogate for it (None: silent estimator, or no true
-    ``uses_estimator``); the true K comes only by the oracle's ``observe_truth``."""
+    """Measurement ``(E, M, alpha1..alpha_p)`` and the estimator's K surrogate for it (None:
+    none, or the controller's ``uses_estimator`` is false) in, next angles out; the true K
+    comes only by the oracle's ``observe_truth``."""
 
     name: str
 

@@ -11,9 +11,9 @@ after each failed entry; after that it tracks until the scan takes over.
 The curve is best for K < 0; its mirror twin ``c(-s) + pi/2`` (:mod:`dlmpc_ros.core.symmetry`)
 is as good at K as the curve at -K. The tracker turns to the other branch
 (:class:`~dlmpc_ros.control.branch_turn.BranchTurn`) when its estimate passes 0 by
-``mirror_margin`` or O falls ``trial_drop`` under its best on the branch, and keeps the
-turn only if it gains. Every ``PLAN_EVERY`` blocks its planner may turn the curve at the
-current point (the learned rotation, :mod:`dlmpc_ros.control.rotation_planner`).
+``mirror_margin`` (even in the wait after a turn begun at the other sign) or O falls
+``trial_drop`` under its best on the branch, and keeps the turn only if it gains. Every
+``PLAN_EVERY`` blocks its planner may turn the curve (:mod:`~dlmpc_ros.control.rotation_planner`).
 """
 
 from __future__ import annotations
@@ -97,6 +97,7 @@ class CurveTracker:
         self.branch = 1           # 1: on the curve; -1: on its mirror twin
         self.turner = BranchTurn(self.config.turn_guard, self.limits, self.on_curve)
         self._estimate_before_turn = 0.0
+        self._turn_side = 0.0     # sign of the estimate where the last turn began (0: lost)
         #: O of the consecutive locked periods while not tracking (the latest few)
         self._recent: deque[float] = deque(maxlen=self.config.entry_patience)
         self._entry_objective = 0.0
@@ -202,15 +203,13 @@ class CurveTracker:
             weak = (self.expected is None or objective < self.config.entry_trial_below
                     * np.interp(self.branch * self.estimate, self.grid, self.expected))
             if weak and self.turner.wait == 0 and not self.turner.lost_landing \
-                    and self.turner.begin(np.asarray(current, float),
-                                          self.branch * self.estimate, self._reference()):
+                    and self._begin_turn(current):
                 return self._turning(float(objective))
         move = self.dither.add(float(objective), compare=self._age > self.config.settle)
         if move is not None:  # a dither block closed
             self._end_block(float(objective), move)
-            if (current is not None and self._wants_other_branch()
-                    and self.turner.begin(np.asarray(current, float),
-                                          self.branch * self.estimate, self._reference())):
+            if current is not None and self._wants_other_branch() \
+                    and self._begin_turn(current):
                 return self._turning(float(objective))
         return self.curve(self.estimate + self.dither.sign * self.config.dither)
 
@@ -218,19 +217,25 @@ class CurveTracker:
         """The O a turn begun now is judged against: the median of the latest periods."""
         return float(np.median(self._latest))
 
+    def _begin_turn(self, current: np.ndarray) -> bool:
+        """Begin a turn at the estimate from the angles ``current`` (4,) [rad] (or not: False)."""
+        self._turn_side = float(np.sign(self.estimate))
+        return self.turner.begin(np.asarray(current, float), self.branch * self.estimate,
+                                 self._reference())
+
     def _wants_other_branch(self) -> bool:
-        """Whether to try the other branch: the estimate has gone past the margin onto its
-        side, or the mean O of the last ``TRIAL_BLOCKS`` blocks has fallen ``trial_drop``
-        under the best such mean since the branch was chosen (and no turn is cooling
-        down)."""
+        """Whether to try the other branch: the estimate went ``mirror_margin`` past K = 0, or
+        the mean O of the last ``TRIAL_BLOCKS`` blocks fell ``trial_drop`` under the best such
+        mean since the branch was chosen. The wait after a turn holds both back, except a
+        crossing of 0 since a turn that kept the pulse began (past 0 the branches are
+        another question)."""
         cfg = self.config
-        if self.turner.wait > 0:
+        past_zero = self.branch * self.estimate > cfg.mirror_margin
+        if self.turner.wait > 0 and not (past_zero and np.sign(self.estimate) == -self._turn_side):
             return False
-        # the trial's values and the best are cleared together: no values, no best yet
-        values = self._trial_values
-        return (self.branch * self.estimate > cfg.mirror_margin
-                or bool(values) and sum(values) / len(values)
-                < (1 - cfg.trial_drop) * self._branch_best)
+        values = self._trial_values  # cleared with the best: no values, no best yet
+        return (past_zero or bool(values)
+                and sum(values) / len(values) < (1 - cfg.trial_drop) * self._branch_best)
 
     def _turning(self, objective: float) -> np.ndarray:
         """A period of a change of branch: the turn's command (or, while the new branch is
@@ -244,6 +249,8 @@ class CurveTracker:
         elif event == RETURNED:
             self.branch = -self.branch
             self.estimate = self._estimate_before_turn
+        if event == ABANDONED:  # the turn itself lost O: its wait holds on either side
+            self._turn_side = 0.0
         if event in (KEPT, RETURNED, ABANDONED):
             self.dither.restart()
             self._branch_best = 0.0  # the branch is chosen anew: its best from here on

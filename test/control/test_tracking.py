@@ -230,6 +230,29 @@ def test_tracker_turns_to_the_mirror_twin_when_k_drifts_through_zero():
     assert plain.branch == 1 and np.mean(o_plain[-100:]) < 0.186
 
 
+def test_a_crossing_of_k_0_asks_for_a_turn_even_while_an_earlier_turn_cools_down():
+    """A turn made at K < 0 starts the wait between turns; K then goes through 0, and the
+    estimate's crossing asks for the turn at once instead of leaving the laser on the branch
+    for K < 0 until the wait is over."""
+    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.05, entry_trial_after=NEVER)
+    drift = lambda t: -0.05 + 0.002 * min(max(t - 250, 0), 100)  # noqa: E731
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
+    o, current, begun, branch = 0.2, None, [], []
+    for t in range(600):
+        before = tracker.state
+        cmd = tracker.step(o, current)
+        if before is not TrackerState.TURN and tracker.state is TrackerState.TURN:
+            begun.append((t, tracker.estimate, tracker.turner.wait))
+        branch.append(tracker.branch)
+        current = tracker.limits.apply(cmd if current is None else current, cmd)
+        dip = 0.85 if 150 <= t < 165 else 1.0  # a fall of O: a branch trial at K = -0.05
+        o = _mirrored_objective(current, drift(t)) * dip
+    # turns at K < 0 (the trial, and back), then one begun past 0 while their wait ran
+    assert begun[0][1] < 0 and begun[-1][1] > cfg.mirror_margin and begun[-1][2] > 0
+    assert branch[-1] == -1 and branch[330] == -1      # on the twin soon after K passed 0
+    assert abs(tracker.estimate - 0.15) < 0.06
+
+
 def test_the_guard_judges_entries_only_not_the_end_of_a_branch_turn():
     """A branch turn ending late in a run is judged by its own rule: a fall of O after it
     leaves the tracker on (the scan takes over if the pulse goes), not stopped."""
