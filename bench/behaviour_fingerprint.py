@@ -1,10 +1,12 @@
 """The DL-MPC's behaviour in a few hashes, to check that a refactoring changed nothing.
 
-Five short fast runs (8,000 round trips each) that between them exercise every part of
-the controller: the nominal cavity and a family plant (the issue-32 plant: pump 1.60,
-saturation energy 4.6, loss 0.115, dispersion -0.35), stress-suite conditions with
-ideal and slow servos and 1 % detector noise (scan, entries, branch turns, planned turns,
-held angles), and ``strategy:=paper`` (the inner loop and the MP-RNN's outer loop). Per
+Six short fast runs (8,000 round trips each) that between them exercise every part of
+the controller: the nominal cavity and two family plants (the issue-32 plant: pump 1.60,
+saturation energy 4.6, loss 0.115, dispersion -0.35; one near development family 5, where
+K's crossings of 0 ask for turns within the wait after one: ``turn_crossing.md``),
+stress-suite conditions with ideal and slow servos and 1 % detector noise (scan, entries,
+branch turns, planned turns, held angles), and ``strategy:=paper`` (the inner loop and the
+MP-RNN's outer loop). Per
 run it prints the mean O, the periods per mode and a hash of every round trip's angles;
 with ``--check FILE`` it compares them with a recorded run and exits 1 on any difference.
 The hashes are of float64 arrays: compare on one machine and library set
@@ -31,11 +33,15 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 #: A family-range plant (issue 32's first example).
 PLANT = {'pump': 1.60, 'saturation_energy': 4.6, 'loss': 0.115, 'dispersion': -0.35}
+#: A plant near development family 5 (rounded).
+PLANT_5 = {'pump': 1.857, 'saturation_energy': 4.75, 'loss': 0.106, 'dispersion': -0.443,
+           'gain_bandwidth': 0.0822}
 #: (label, controller, plant, stress condition, seed).
 CASES = (('nominal', 'dlmpc', {}, 'sin6k-ideal', 1),
          ('issue-plant', 'dlmpc', PLANT, 'walk-servo6', 2),
          ('issue-plant', 'dlmpc', PLANT, 'steps-noise1', 1),
          ('nominal', 'dlmpc', {}, 'steps-servo3', 3),
+         ('family-5-like', 'dlmpc', PLANT_5, 'sin6k-ideal', 1),
          ('nominal', 'dlmpc_paper', {}, 'sin6k-ideal', 1))
 ROUND_TRIPS = 8000
 
