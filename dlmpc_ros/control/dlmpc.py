@@ -143,8 +143,7 @@ class DLMPCController:
         loops = ([TrackMode(self.tracker)] if self.tracker is not None
                  else [self.outer, InnerLoop(self.map_angles)])
         self.modes: list[Mode] = [*acquire, *loops, HoldMode()]
-        #: Only the paper's loops read the VAE's surrogate: the harnesses and the node then
-        #: give it one with each measurement (the node waits for it).
+        #: Whether the harnesses and the node give it the VAE's surrogate (the paper's loops)
         self.uses_estimator = self.tracker is None
 
     def fresh(self) -> DLMPCController:

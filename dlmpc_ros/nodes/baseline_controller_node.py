@@ -73,8 +73,6 @@ class BaselineControllerNode(ControllerNodeBase):
                 initial_k=None if math.isnan(k0) else k0, ga_config=ga)
         except (FileNotFoundError, ValueError) as err:  # ControllerSpecError: one line
             raise params.StartupError(str(err)) from None
-        # a controller that reads the VAE's surrogate (dlmpc_paper) waits for vae_estimator
-        self.uses_estimator = bool(getattr(self.controller, 'uses_estimator', False))
         self._truth: dict[int, float] = {}
         if hasattr(self.controller, 'observe_truth'):  # the oracle (evaluation only)
             self.create_subscription(Float64MultiArray, itf.TOPIC_SIM_TRUTH, self._on_truth,

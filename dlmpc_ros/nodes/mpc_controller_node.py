@@ -134,8 +134,6 @@ class MPCControllerNode(ControllerNodeBase):
         except (ModelFileError, FileNotFoundError) as err:
             raise params.StartupError(str(err)) from None
         self.controller.warm_up()
-        # strategy:=paper (or track:=false) reads /controller/estimate and waits for it
-        self.uses_estimator = self.controller.uses_estimator
         self.start()
 
     def fresh_controller(self) -> DLMPCController:

@@ -47,7 +47,7 @@ RECENT_DECISIONS = 1000
 class ControllerNodeBase(Node):
     """Subclasses set ``self.controller`` and call :meth:`start` at the end of __init__."""
 
-    uses_estimator = False
+    uses_estimator = False  # set by start(): whether the controller reads the surrogate
 
     def __init__(self, name: str, defaults: dict, descriptions: dict,
                  ranges: dict[str, tuple[float, float]] | None = None) -> None:
@@ -78,6 +78,8 @@ class ControllerNodeBase(Node):
         self._settling = SettleWatch()
 
     def start(self) -> None:
+        # a controller that reads the VAE's surrogate (the paper's loops) waits for it
+        self.uses_estimator = bool(getattr(self.controller, 'uses_estimator', False))
         self._cmd_pub = self.create_publisher(Float64MultiArray, itf.TOPIC_ANGLES_CMD,
                                               QOS[itf.TOPIC_ANGLES_CMD])
         self._status_pub = self.create_publisher(Float64MultiArray, itf.TOPIC_CONTROLLER_STATUS,
