@@ -23,7 +23,7 @@ COMMON_DESCRIPTIONS = {
     'max_step': 'largest angle change per control period [rad] (servo speed)',
     'models_dir': 'directory of the model files (empty: the installed models/)',
     'estimator_timeout': 'seconds to wait for the estimate of a period before acting '
-                         'without it',
+                         'without it (a controller that reads it: strategy:=paper)',
     'measurement_round_trips': "a period's measurement is the mean E and M of the last this "
                                "many round trips at its angles (1: its own round trip only; "
                                "more divide a detector's noise)",
