@@ -1,12 +1,13 @@
 """The curve tracker's change of branch: from the tracking curve to its mirror twin and back.
 
 The twin ``c(-s) + pi/2`` (:mod:`dlmpc_ros.core.symmetry`) is as good at K as the curve at
--K. A :class:`BranchTurn` turns all four angles together by a quarter turn over
-``ceil(pi/2 / TURN_STEP)`` periods while the curve parameter runs from ``u`` to ``-|u|``.
-A real laser's sign conventions are unknown: if O falls under ``turn_guard`` x its O before,
-the turn retraces and the other way round is tried next time (within ``FREE_TURN`` of K = 0,
-the way toward mid-range first); after ``VERIFY`` periods on trial the new branch is kept
-only if it gives ``BRANCH_GAIN`` more O, else the laser turns back.
+-K. A :class:`BranchTurn` turns all four angles a quarter turn over ``ceil(pi/2 /
+TURN_STEP)`` periods while the curve parameter runs from ``u`` to ``-|u|``. Under
+``turn_guard`` x the O before, it retraces and next time goes the other way round (within
+``FREE_TURN`` of K = 0: toward mid-range first); after ``VERIFY`` periods on trial it stays
+only for ``BRANCH_GAIN`` more O. Far from K = 0 the one way that keeps the pulse winds the
+servos to an end: with no room left that way, a turn goes the other and never retraces (a
+lost pulse is found by the scan, which centres the servos).
 """
 
 from __future__ import annotations
@@ -77,14 +78,12 @@ class BranchTurn:
         self.wait = 0            # periods before the next turn may start
         self._path: list[np.ndarray] = []    # commands still to send
         self._issued: list[np.ndarray] = []  # commands of this turn sent so far
-        self._from = np.zeros(4)             # the angles it started from
-        self._before = 0.0                   # O just before it
-        self._way = -1.0
+        self._from, self._before = np.zeros(4), 0.0  # the angles and O it started from
+        self._way, self._forced = -1.0, False  # its way round; True: the kept way had no room
         self._phase = TurnPhase.IDLE
         self.landing = 0.0                   # curve point the turn under way lands at
         self._checked: list[float] = []      # O measured while verifying
-        #: the last turn lost the pulse where it landed (until one is kept)
-        self.lost_landing = False
+        self.lost_landing = False  # the last turn lost the pulse where it landed (till kept)
 
     @property
     def busy(self) -> bool:
@@ -117,6 +116,7 @@ class BranchTurn:
             path = [current + self.on_curve(u + (self.landing - u) * t) - start
                     + way * QUARTER_TURN * t for t in fractions]
             if all(np.all(a >= self.limits.low) and np.all(a <= self.limits.high) for a in path):
+                self._forced = abs(u) > FREE_TURN and way != self.direction  # no room
                 self._way, self._path, self._issued = way, path, []
                 self._from = np.asarray(current, float)
                 self._before = float(objective)
@@ -129,8 +129,17 @@ class BranchTurn:
         """Retrace the turn's commands to its start, as ``phase`` (BACK, LOST or LANDED)."""
         self._phase, self._path = phase, self._issued[-2::-1] + [self._from]
 
+    def _keep(self) -> tuple[None, TurnEvent]:
+        """The new branch stays."""
+        self._phase, self.wait = TurnPhase.IDLE, TURN_COOLDOWN
+        self.made += 1
+        self.lost_landing = False
+        return None, KEPT
+
     def step(self, objective: float) -> tuple[np.ndarray | None, TurnEvent]:
         """This period's O -> the turn's command (None while verifying) and its event."""
+        if self._phase is TurnPhase.VERIFY and self._forced:  # no way back worth taking
+            return self._keep()
         if (self._phase is TurnPhase.VERIFY
                 and not objective >= self.turn_guard * self._before):  # going where it landed
             self._retrace(TurnPhase.LANDED)
@@ -142,12 +151,9 @@ class BranchTurn:
                 return None, TurnEvent.NONE
             settled = self._checked[-max(1, VERIFY // 2):]  # the later half: settled
             if np.median(settled) >= (1 + BRANCH_GAIN) * self._before:
-                self._phase, self.wait = TurnPhase.IDLE, TURN_COOLDOWN
-                self.made += 1
-                self.lost_landing = False
-                return None, KEPT
+                return self._keep()
             self._retrace(TurnPhase.BACK)
-        elif (self._phase is TurnPhase.GO and self._issued
+        elif (self._phase is TurnPhase.GO and self._issued and not self._forced
               and not objective >= self.turn_guard * self._before):  # the pulse is going
             self._retrace(TurnPhase.LOST)
         command = self._path.pop(0)

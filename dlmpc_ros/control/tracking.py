@@ -8,12 +8,11 @@ where the scan locked. An entry that fails (O under ``guard`` x the O at entry i
 ``2 * block`` periods after ``settle``) hands back and waits ``COOLDOWN`` periods, doubled
 after each failed entry; after that it tracks until the scan takes over.
 
-The curve is best for K < 0; its mirror twin ``c(-s) + pi/2`` (:mod:`dlmpc_ros.core.symmetry`)
-is as good at K as the curve at -K. The tracker turns to the other branch
-(:class:`~dlmpc_ros.control.branch_turn.BranchTurn`) when its estimate passes 0 by
-``mirror_margin`` (even in the wait after a turn begun at the other sign) or O falls
-``trial_drop`` under its best on the branch, and keeps the turn only if it gains. Every
-``PLAN_EVERY`` blocks its planner may turn the curve (:mod:`~dlmpc_ros.control.rotation_planner`).
+The curve is best for K < 0, its twin ``c(-s) + pi/2`` (:mod:`dlmpc_ros.core.symmetry`) for
+K > 0. The tracker turns to the other branch (:class:`~dlmpc_ros.control.branch_turn.
+BranchTurn`) when its estimate passes 0 by ``mirror_margin`` or O falls ``trial_drop`` under
+its best on the branch, and keeps the turn only if it gains. Every ``PLAN_EVERY`` blocks its
+planner may turn the curve (:mod:`~dlmpc_ros.control.rotation_planner`).
 """
 
 from __future__ import annotations
@@ -96,7 +95,7 @@ class CurveTracker:
         self.active = False
         self.branch = 1           # 1: on the curve; -1: on its mirror twin
         self.turner = BranchTurn(self.config.turn_guard, self.limits, self.on_curve)
-        self._estimate_before_turn = 0.0
+        self._before_turn = (1, 0.0)  # (branch, estimate) where the latest turn began
         self._turn_side = 0.0     # sign of the estimate where the last turn began (0: lost)
         #: O of the consecutive locked periods while not tracking (the latest few)
         self._recent: deque[float] = deque(maxlen=self.config.entry_patience)
@@ -141,16 +140,17 @@ class CurveTracker:
 
     def enter_at(self, estimate: float, branch: int, objective: float,
                  current: np.ndarray | None = None) -> None:
-        """Start tracking now at ``estimate`` on ``branch`` (where the acquisition scan just
-        locked, with O = ``objective``, the servos at ``current`` (4,) [rad]), without the
-        entry patience or a cooldown. A scan may lock with the half-wave plate a quarter
-        turn from the curve's (the same setting, :data:`HALF_WAVE`): the tracker then keeps
-        that frame rather than turn the plate back through its period."""
+        """Start tracking at ``estimate`` on ``branch`` where the scan just locked (O =
+        ``objective``, servos at ``current`` (4,) [rad]): no entry patience, cooldown or wait
+        after an earlier turn. A scan may lock with the half-wave plate a quarter turn from the
+        curve's (the same setting, :data:`HALF_WAVE`): the tracker keeps that frame rather
+        than turn the plate back through its period."""
         if branch not in (1, -1):
             raise ValueError(f'branch must be 1 or -1, got {branch}')
         self.active, self._wait = True, 0
         self.branch = branch
         self.turner.cancel()
+        self.turner.wait = 0
         self._recentre()
         self.estimate = float(np.clip(estimate, self.grid[0], self.grid[-1]))
         self._entry_objective = float(objective) if np.isfinite(objective) else 0.0
@@ -219,16 +219,15 @@ class CurveTracker:
 
     def _begin_turn(self, current: np.ndarray) -> bool:
         """Begin a turn at the estimate from the angles ``current`` (4,) [rad] (or not: False)."""
-        self._turn_side = float(np.sign(self.estimate))
+        self._turn_side, self._before_turn = np.sign(self.estimate), (self.branch, self.estimate)
         return self.turner.begin(np.asarray(current, float), self.branch * self.estimate,
                                  self._reference())
 
     def _wants_other_branch(self) -> bool:
         """Whether to try the other branch: the estimate went ``mirror_margin`` past K = 0, or
-        the mean O of the last ``TRIAL_BLOCKS`` blocks fell ``trial_drop`` under the best such
-        mean since the branch was chosen. The wait after a turn holds both back, except a
-        crossing of 0 since a turn that kept the pulse began (past 0 the branches are
-        another question)."""
+        the mean O of the last ``TRIAL_BLOCKS`` blocks fell ``trial_drop`` under its best on
+        the branch. The wait after a turn holds both back but a crossing of 0 since a turn
+        that kept the pulse began (past 0 the branches are another question)."""
         cfg = self.config
         past_zero = self.branch * self.estimate > cfg.mirror_margin
         if self.turner.wait > 0 and not (past_zero and np.sign(self.estimate) == -self._turn_side):
@@ -238,17 +237,14 @@ class CurveTracker:
                 and sum(values) / len(values) < (1 - cfg.trial_drop) * self._branch_best)
 
     def _turning(self, objective: float) -> np.ndarray:
-        """A period of a change of branch: the turn's command (or, while the new branch is
-        on trial, its point at the estimate); the branch flips when the laser arrives and
-        back when it is turned back."""
+        """A period of a branch turn: its command (on trial: the new branch's point at the
+        estimate); the branch flips on arrival, and back to where it began if it retraces."""
         command, event = self.turner.step(objective)
         if event == ARRIVED:  # on the other branch, at the curve point the turn landed at
-            self._estimate_before_turn = self.estimate
             self.branch = -self.branch
             self.estimate = self.branch * self.turner.landing
-        elif event == RETURNED:
-            self.branch = -self.branch
-            self.estimate = self._estimate_before_turn
+        elif event in (RETURNED, ABANDONED):  # retraced: back where it began
+            self.branch, self.estimate = self._before_turn
         if event == ABANDONED:  # the turn itself lost O: its wait holds on either side
             self._turn_side = 0.0
         if event in (KEPT, RETURNED, ABANDONED):
@@ -288,9 +284,8 @@ class CurveTracker:
         self.dither.restart()
 
     def _forget_unjudged_turn(self) -> None:
-        """Take back the planner's latest turn if it has not judged it yet (the laser lost
-        what it had before the next plan), in the curve's memory too: otherwise the turn
-        that lost the pulse stays where K will come by again."""
+        """Take back the planner's latest turn, not judged yet (the laser lost what it had),
+        from the curve's memory too, lest it stay where K will come by again."""
         if self.planner is not None:
             turn = self.planner.retract()
             if turn:

@@ -383,11 +383,12 @@ def test_a_turn_that_loses_the_pulse_is_turned_back_and_tried_the_other_way():
 
 
 def _scripted_entry(config: TrackingConfig, objectives: list[float],
-                    lost_landing: bool = False) -> CurveTracker:
+                    lost_landing: bool = False, wait: int = 0) -> CurveTracker:
     """A tracker entered where a scan locked (curve point -0.1, branch 1), fed the O
-    values ``objectives`` one per period with the angles it asked for."""
+    values ``objectives`` one per period with the angles it asked for (``wait``: periods
+    left of the wait after an earlier turn)."""
     tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=config)
-    tracker.turner.lost_landing = lost_landing
+    tracker.turner.lost_landing, tracker.turner.wait = lost_landing, wait
     tracker.enter_at(-0.1, 1, objectives[0])
     current = tracker.curve(tracker.estimate)
     for o in objectives:
@@ -403,6 +404,8 @@ def test_the_entry_trial_comes_entry_trial_after_periods_after_the_entry():
     assert due.turner.busy
     # not after a turn that lost the pulse where it landed (until a turn is kept)
     assert not _scripted_entry(cfg, [0.15] * 5, lost_landing=True).turner.busy
+    # the wait after an earlier turn does not hold back a scan's lock (a new start)
+    assert _scripted_entry(cfg, [0.15] * 5, wait=50).turner.busy
     with pytest.raises(ValueError, match='entry_trial_after'):
         TrackingConfig(entry_trial_after=-1)
 
@@ -443,6 +446,48 @@ def test_a_turn_whose_pulse_goes_where_it_landed_is_taken_back_at_once():
             assert turner.direction == -1.0          # the way round that kept the pulse
         else:
             assert command is None and event is TurnEvent.NONE and not turner.lost_landing
+
+
+def test_after_a_turn_taken_back_from_its_landing_the_tracker_is_where_it_began():
+    """The entry trial's turn arrives on the twin, the pulse goes there and the turn
+    retraces to its start: the tracker is back on its branch at its estimate, and its next
+    command is its own curve point, not the landing it gave up."""
+    steps = int(np.ceil(QUARTER_TURN / TURN_STEP - 1e-9))
+    cfg = TrackingConfig(entry_trial_after=2, trial_drop=0.0, mirror_margin=0.5)
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg)
+    tracker.enter_at(-0.1, 1, 0.15)
+    current, events = tracker.curve(tracker.estimate), []
+    script = [0.15] * (2 + steps) + [0.01] * steps  # lost where it landed
+    for o in script:
+        before = tracker.turner.abandoned
+        current = tracker.limits.apply(current, tracker.step(o, current))
+        events.append(tracker.turner.abandoned > before)
+    assert events[-1] and tracker.turner.abandoned == 1 and not tracker.turner.busy
+    assert tracker.branch == 1 and tracker.estimate == -0.1
+    command = tracker.step(0.15, current)
+    assert np.max(np.abs(command - tracker.curve(-0.1 + cfg.dither))) < 1e-12
+
+
+def test_a_turn_whose_way_has_no_room_goes_the_other_way_and_does_not_turn_back():
+    """Every turn far from K = 0 goes the way that kept the pulse, winding the servos; with
+    a servo at the end of its range that way does not fit: the turn goes the other way and
+    is kept even where it loses O (retracing the path that lost it saves nothing; the scan
+    finds the pulse again), while the same turn with room is turned back."""
+    steps = int(np.ceil(QUARTER_TURN / TURN_STEP - 1e-9))
+    limits = AngleLimits()
+    wound = ANGLES[5] + np.array([0.0, 0.0, 0.0, limits.low + 1.0 - ANGLES[5, 3]])
+    for start, forced in ((ANGLES[5], False), (wound, True)):
+        turner = CurveTracker(GRID, ANGLES, threshold=0.05, limits=limits).turner
+        assert turner.begin(start, GRID[5], 0.2)          # far from K = 0
+        events = []
+        while turner.busy:                                # O falls after two steps
+            events.append(turner.step(0.2 if len(events) < 2 else 0.01)[1])
+        if forced:   # the way round that kept the pulse (-1) would pass the low end
+            assert events == [TurnEvent.NONE] * (steps - 1) + [TurnEvent.ARRIVED,
+                                                               TurnEvent.KEPT]
+            assert turner.direction == -1.0 and turner.made == 1
+        else:        # turned back after the first O under the guard
+            assert events == [TurnEvent.NONE] * 3 + [TurnEvent.ABANDONED]
 
 
 def test_a_turn_stays_inside_the_servo_limits():
