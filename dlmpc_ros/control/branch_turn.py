@@ -1,13 +1,13 @@
 """The curve tracker's change of branch: from the tracking curve to its mirror twin and back.
 
 The twin ``c(-s) + pi/2`` (:mod:`dlmpc_ros.core.symmetry`) is as good at K as the curve at
--K. A :class:`BranchTurn` turns all four angles a quarter turn over ``ceil(pi/2 /
-TURN_STEP)`` periods while the curve parameter runs from ``u`` to ``-|u|``. Under
-``turn_guard`` x the O before, it retraces and next time goes the other way round (within
-``FREE_TURN`` of K = 0: toward mid-range first); after ``VERIFY`` periods on trial it stays
-only for ``BRANCH_GAIN`` more O. Far from K = 0 the one way that keeps the pulse winds the
-servos to an end: with no room left that way, a turn goes the other and never retraces (a
-lost pulse is found by the scan, which centres the servos).
+-K. A :class:`BranchTurn` turns all four angles a quarter turn over ``TURN_PERIODS`` periods
+while the curve parameter runs from ``u`` to ``-|u|``. Under ``turn_guard`` x the O before,
+it retraces and next time goes the other way round (within ``FREE_TURN`` of K = 0: toward
+mid-range first); after ``VERIFY`` periods on trial it stays only for ``BRANCH_GAIN`` more
+O. Far from K = 0 the one way that keeps the pulse winds the servos to an end: with no room
+left that way, a turn goes the other and never retraces (a lost pulse is found by the scan,
+which centres the servos).
 """
 
 from __future__ import annotations
@@ -51,9 +51,10 @@ ARRIVED, KEPT, RETURNED, ABANDONED = (TurnEvent.ARRIVED, TurnEvent.KEPT, TurnEve
 FREE_TURN = 0.06
 #: Relative gain of O the new branch must bring to be kept.
 BRANCH_GAIN = 0.005
-#: Turn of all four angles per period while changing branch [rad] (<= the servo speed;
-#: 0.1 lost O, 0.25 measured nothing, ``bench/results/turn_step.md``).
+#: Turn of all four angles per period while changing branch [rad] (<= the servo speed; 0.1
+#: lost O, 0.25 measured nothing, ``bench/results/turn_step.md``), and the periods a turn takes.
 TURN_STEP = 0.2
+TURN_PERIODS = int(np.ceil(QUARTER_TURN / TURN_STEP - 1e-9))
 #: Periods after a turn (made or given up) before the next may start.
 TURN_COOLDOWN = 100
 #: Periods on trial after a turn; the median O of their later half decides.
@@ -102,10 +103,9 @@ class BranchTurn:
         """Start a turn from ``current`` (4,) [rad] at curve point ``u`` to :attr:`landing`
         (``-|u|``), ``objective`` the O before it; False (and a cooldown) if no way round
         fits the limits. Tries first :attr:`direction` (within ``FREE_TURN``: toward mid-range)."""
-        steps = int(np.ceil(QUARTER_TURN / TURN_STEP - 1e-9))
         start = self.on_curve(u)
         self.landing = -abs(u)
-        fractions = (np.arange(steps) + 1) / steps
+        fractions = (np.arange(TURN_PERIODS) + 1) / TURN_PERIODS
         middle = 0.5 * (self.limits.low + self.limits.high)
         if abs(u) > FREE_TURN:
             ways: tuple[float, ...] = (self.direction, -self.direction)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from dlmpc_ros.control.branch_turn import TURN_STEP, TurnEvent
+from dlmpc_ros.control.branch_turn import TURN_PERIODS, TurnEvent
 from dlmpc_ros.control.dlmpc import DLMPCController
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig, TrackingConfig
 from dlmpc_ros.control.limits import AngleLimits
@@ -375,7 +375,7 @@ def test_a_turn_that_loses_the_pulse_is_turned_back_and_tried_the_other_way():
     out = int(np.argmax(turned))                             # the furthest the wrong way
     assert 0 < turned[out] < QUARTER_TURN / 2                # part of the way round ...
     assert turned[out + 1:].max() < turned[out]              # ... and back
-    steps = int(round(turned[out] / (QUARTER_TURN / 8)))
+    steps = int(round(turned[out] / (QUARTER_TURN / TURN_PERIODS)))
     before = o[out - steps]                                  # O just before the turn
     under = np.flatnonzero(o[out - steps:out + 1] < cfg.turn_guard * before)
     assert under.size == 1 and under[0] == steps   # the first O under the guard turned it
@@ -431,17 +431,16 @@ def test_a_turn_whose_pulse_goes_where_it_landed_is_taken_back_at_once():
     guard: the laser is turned back in the next period, not after the ``verify`` periods
     (the way round is kept, and the next entry makes no trial); O above the guard is
     verified."""
-    steps = int(np.ceil(QUARTER_TURN / TURN_STEP - 1e-9))
     cfg = TrackingConfig()
     for landing, lost in ((0.05, True), (0.2, False)):
         turner = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg).turner
         assert turner.begin(ANGLES[20], GRID[20], 0.2)
-        events = [turner.step(0.2)[1] for _ in range(steps)]
+        events = [turner.step(0.2)[1] for _ in range(TURN_PERIODS)]
         assert events[-1] is TurnEvent.ARRIVED
         command, event = turner.step(landing)
         if lost:                                     # the pulse is going at the landing
             assert command is not None and turner.lost_landing
-            back = [turner.step(0.05)[1] for _ in range(steps - 1)]
+            back = [turner.step(0.05)[1] for _ in range(TURN_PERIODS - 1)]
             assert back[-1] is TurnEvent.ABANDONED and turner.abandoned == 1
             assert turner.direction == -1.0          # the way round that kept the pulse
         else:
@@ -452,12 +451,11 @@ def test_after_a_turn_taken_back_from_its_landing_the_tracker_is_where_it_began(
     """The entry trial's turn arrives on the twin, the pulse goes there and the turn
     retraces to its start: the tracker is back on its branch at its estimate, and its next
     command is its own curve point, not the landing it gave up."""
-    steps = int(np.ceil(QUARTER_TURN / TURN_STEP - 1e-9))
     cfg = TrackingConfig(entry_trial_after=2, trial_drop=0.0, mirror_margin=0.5)
     tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg)
     tracker.enter_at(-0.1, 1, 0.15)
     current, events = tracker.curve(tracker.estimate), []
-    script = [0.15] * (2 + steps) + [0.01] * steps  # lost where it landed
+    script = [0.15] * (2 + TURN_PERIODS) + [0.01] * TURN_PERIODS  # lost where it landed
     for o in script:
         before = tracker.turner.abandoned
         current = tracker.limits.apply(current, tracker.step(o, current))
@@ -473,7 +471,6 @@ def test_a_turn_whose_way_has_no_room_goes_the_other_way_and_does_not_turn_back(
     a servo at the end of its range that way does not fit: the turn goes the other way and
     is kept even where it loses O (retracing the path that lost it saves nothing; the scan
     finds the pulse again), while the same turn with room is turned back."""
-    steps = int(np.ceil(QUARTER_TURN / TURN_STEP - 1e-9))
     limits = AngleLimits()
     wound = ANGLES[5] + np.array([0.0, 0.0, 0.0, limits.low + 1.0 - ANGLES[5, 3]])
     for start, forced in ((ANGLES[5], False), (wound, True)):
@@ -483,8 +480,8 @@ def test_a_turn_whose_way_has_no_room_goes_the_other_way_and_does_not_turn_back(
         while turner.busy:                                # O falls after two steps
             events.append(turner.step(0.2 if len(events) < 2 else 0.01)[1])
         if forced:   # the way round that kept the pulse (-1) would pass the low end
-            assert events == [TurnEvent.NONE] * (steps - 1) + [TurnEvent.ARRIVED,
-                                                               TurnEvent.KEPT]
+            assert events == ([TurnEvent.NONE] * (TURN_PERIODS - 1)
+                              + [TurnEvent.ARRIVED, TurnEvent.KEPT])
             assert turner.direction == -1.0 and turner.made == 1
         else:        # turned back after the first O under the guard
             assert events == [TurnEvent.NONE] * 3 + [TurnEvent.ABANDONED]
