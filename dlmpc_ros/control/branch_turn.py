@@ -4,10 +4,10 @@ The twin ``c(-s) + pi/2`` (:mod:`dlmpc_ros.core.symmetry`) is as good at K as th
 -K. A :class:`BranchTurn` turns all four angles a quarter turn over ``TURN_PERIODS`` periods
 while the curve parameter runs from ``u`` to ``-|u|``. Under ``turn_guard`` x the O before,
 it retraces and next time goes the other way round (within ``FREE_TURN`` of K = 0: toward
-mid-range first); after ``VERIFY`` periods on trial it stays only for ``BRANCH_GAIN`` more
-O. Far from K = 0 the one way that keeps the pulse winds the servos to an end: with no room
-left that way, a turn goes the other and never retraces (a lost pulse is found by the scan,
-which centres the servos).
+mid-range first); after ``VERIFY`` periods on trial it stays for ``BRANCH_GAIN`` more O, or
+where ``turn_curve`` (the tracker's planner) turns the curve to make up what is short. Far
+from K = 0 the one way that keeps the pulse winds the servos to an end: with no room left
+that way, a turn goes the other and never retraces (the scan centres the servos).
 """
 
 from __future__ import annotations
@@ -65,13 +65,17 @@ class BranchTurn:
     """A change of branch under way, and what earlier ones taught.
 
     ``turn_guard``: the tracker's (:class:`~dlmpc_ros.control.dlmpc_config.TrackingConfig`);
-    ``on_curve(u)``: the curve's angles (4,) [rad] at ``u`` (with any learned rotation)."""
+    ``on_curve(u)``: the curve's angles (4,) [rad] at ``u`` (with any learned rotation);
+    ``turn_curve(gain)``: turns the curve where the turn is expected to gain that much log O
+    (whether it did; None: never)."""
 
     def __init__(self, turn_guard: float, limits: AngleLimits,
-                 on_curve: Callable[[float], np.ndarray]) -> None:
+                 on_curve: Callable[[float], np.ndarray],
+                 turn_curve: Callable[[float], bool] | None = None) -> None:
         self.turn_guard = float(turn_guard)
         self.limits = limits
         self.on_curve = on_curve
+        self.turn_curve = turn_curve
         self.direction = -1.0    # the way round that kept the pulse last
         self.made = 0            # turns kept
         self.abandoned = 0       # turns given up because O fell (pulse going)
@@ -149,8 +153,10 @@ class BranchTurn:
                 self._checked.append(float(objective))
             if len(self._checked) < VERIFY:
                 return None, TurnEvent.NONE
-            settled = self._checked[-max(1, VERIFY // 2):]  # the later half: settled
-            if np.median(settled) >= (1 + BRANCH_GAIN) * self._before:
+            level = float(np.median(self._checked[-max(1, VERIFY // 2):]))  # settled half
+            wanted = (1 + BRANCH_GAIN) * self._before
+            if level >= wanted or (self.turn_curve is not None and level > 0
+                                   and self.turn_curve(float(np.log(wanted / level)))):
                 return self._keep()
             self._retrace(TurnPhase.BACK)
         elif (self._phase is TurnPhase.GO and self._issued and not self._forced

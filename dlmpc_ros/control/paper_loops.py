@@ -31,16 +31,11 @@ SCAN_POINTS = 9
 class PlanResult:
     """A solved plan."""
 
-    first: np.ndarray
-    """(4,) angles for the next period [rad], within one servo step of the current ones."""
-    plan: torch.Tensor
-    """(N, 4) the whole plan [rad], its first row :attr:`first`."""
-    predicted_objective: np.ndarray
-    """(N,) the MP-RNN's O over the horizon under the plan."""
-    predicted_next: torch.Tensor
-    """(2,) the normalized state predicted for the end of the next period."""
-    iterations: int
-    """Adam steps taken."""
+    first: np.ndarray  # (4,) angles for the next period [rad], one servo step from the current
+    plan: torch.Tensor  # (N, 4) the whole plan [rad], its first row ``first``
+    predicted_objective: np.ndarray  # (N,) the MP-RNN's O over the horizon under the plan
+    predicted_next: torch.Tensor  # (2,) the normalized state predicted for the next period
+    iterations: int  # Adam steps taken
 
 
 def solve_plan(model: MPRNN, history: torch.Tensor, seed: torch.Tensor, current: np.ndarray,

@@ -1,15 +1,13 @@
 """The DL-MPC's model-predictive step on the laser in front of it: the curve's learned rotation.
 
-On a laser other than the nominal cavity the best angles move, mostly together: turning all
-four elements by one angle theta recovers most of the gap. :class:`CurveRotation` is
-theta(u) along the curve (the twin at estimate ``s`` is the curve at ``u = -s`` turned a
-quarter turn, so one rotation serves both branches). Every ``PLAN_EVERY`` dither blocks
-(:mod:`~dlmpc_ros.control.tracking`) the :class:`RotationPlanner` asks the steady-response
-predictor (:mod:`dlmpc_ros.learning.response`) what turns ``delta`` at the current point do
-to the settled O, and takes the best (predicted gain less ``spread_penalty`` x the
-ensemble's spread) if it beats ``MIN_GAIN`` and the measurement noise. An
-:class:`OnlineCorrection` learns the predictor's errors on this laser; a move after which O
-fell under ``UNDO_BELOW`` of its O before is taken back.
+Off the nominal cavity the best angles move mostly together: turning all four by one angle
+theta recovers most of the gap. :class:`CurveRotation` is theta(u) along the curve (the twin
+at estimate ``s`` is the curve at ``u = -s`` turned a quarter turn: one rotation serves both
+branches). The :class:`RotationPlanner` asks the steady-response predictor
+(:mod:`dlmpc_ros.learning.response`) what turns ``delta`` at the current point do to the
+settled O and takes the best (predicted gain less ``spread_penalty`` x the ensemble's
+spread) if it beats ``MIN_GAIN`` and the noise; an :class:`OnlineCorrection` learns the
+predictor's errors on this laser; a move after which O fell under ``UNDO_BELOW`` is undone.
 """
 from __future__ import annotations
 
@@ -105,9 +103,10 @@ class RotationPlanner:
         self.recent.clear()
         return delta
 
-    def plan(self, u: float, theta: float, noise: float = 0.0) -> float:
+    def plan(self, u: float, theta: float, noise: float = 0.0, at_least: float = 0.0) -> float:
         """The turn [rad] to add at curve point ``u`` (0: hold); ``theta`` [rad]: the rotation
-        there; ``noise``: the standard deviation of one period's log O (0: unknown)."""
+        there; ``noise``: the standard deviation of one period's log O (0: unknown);
+        ``at_least``: the smallest predicted gain of log O over holding worth the turn."""
         if not self.recent:
             return 0.0
         log_e, log_m = np.mean(np.array(self.recent), axis=0)
@@ -131,8 +130,9 @@ class RotationPlanner:
         best = int(np.argmax(score))
         if cfg.explore:
             best = int(self._rng.integers(CANDIDATES))
-        elif not score[best] > max(MIN_GAIN, score[CANDIDATES // 2],
-                                   cfg.noise_gate * noise * np.sqrt(2 / MEASUREMENTS)):
+        elif not (score[best] > max(MIN_GAIN, score[CANDIDATES // 2],
+                                    cfg.noise_gate * noise * np.sqrt(2 / MEASUREMENTS))
+                  and mean[best] - mean[CANDIDATES // 2] >= at_least):
             return 0.0
         self.moves += 1
         self._pending = (float(deltas[best]), float(mean[best]), log_o)

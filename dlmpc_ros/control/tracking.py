@@ -2,17 +2,15 @@
 
 Along the learned angle curve ``c(s)`` (``s`` a birefringence estimate in K's units) the
 steady O peaks near ``s = K``; the tracker estimates ``s`` by dithering it (:class:`Dither`).
-
-It enters once the laser has been locked ``entry_patience`` periods (at ``start``) or
-where the scan locked. An entry that fails (O under ``guard`` x the O at entry in the
-``2 * block`` periods after ``settle``) hands back and waits ``COOLDOWN`` periods, doubled
-after each failed entry; after that it tracks until the scan takes over.
+It enters after ``entry_patience`` locked periods (at ``start``) or where the scan locked;
+an entry that fails its guard hands back for a cooldown (doubled after each failure).
 
 The curve is best for K < 0, its twin ``c(-s) + pi/2`` (:mod:`dlmpc_ros.core.symmetry`) for
 K > 0. The tracker turns to the other branch (:class:`~dlmpc_ros.control.branch_turn.
 BranchTurn`) when its estimate passes 0 by ``mirror_margin`` or O falls ``trial_drop`` under
-its best on the branch, and keeps the turn only if it gains. Every ``PLAN_EVERY`` blocks its
-planner may turn the curve (:mod:`~dlmpc_ros.control.rotation_planner`).
+its best on the branch, and keeps the turn if it gains, or if its planner expects a turn of
+the curve to make up the rest (:mod:`~dlmpc_ros.control.rotation_planner`), as it may turn
+the curve every ``PLAN_EVERY`` blocks.
 """
 
 from __future__ import annotations
@@ -94,7 +92,8 @@ class CurveTracker:
         self.limits = limits or AngleLimits()
         self.active = False
         self.branch = 1           # 1: on the curve; -1: on its mirror twin
-        self.turner = BranchTurn(self.config.turn_guard, self.limits, self.on_curve)
+        self.turner = BranchTurn(self.config.turn_guard, self.limits, self.on_curve,
+                                 self._turn_curve)
         self._before_turn = (1, 0.0)  # (branch, estimate) where the latest turn began
         self._turn_side = 0.0     # sign of the estimate where the last turn began (0: lost)
         #: O of the consecutive locked periods while not tracking (the latest few)
@@ -108,8 +107,7 @@ class CurveTracker:
         self.rotation = CurveRotation(self.grid[0], self.grid[-1], ROTATION_KNOTS,
                                       ROTATION_LIMIT, ROTATION_SPREAD)
         self.planner = planner
-        self._turn_at = 0.0  # the curve point u of the latest planned turn
-        self.planned = 0.0
+        self._turn_at, self.planned = 0.0, 0.0  # u of the latest planned turn; this period's
         #: 0, or a quarter turn where the scan locked with the half-wave plate turned so
         self._half_wave_frame = 0.0
         self._recentre()          # estimate at start; age, guard, dither and steps reset
@@ -119,14 +117,11 @@ class CurveTracker:
         """What the tracker is doing (:class:`TrackerState`)."""
         if not self.active:
             return TrackerState.IDLE
-        if self.turner.busy:
-            return TrackerState.TURN
-        return TrackerState.DITHER
+        return TrackerState.TURN if self.turner.busy else TrackerState.DITHER
 
     def curve(self, s: float) -> np.ndarray:
-        """The angles (4,) [rad] at parameter ``s`` (clipped to the grid) on the branch the
-        tracker is on: the curve, or its twin ``c(-s) + pi/2``, turned by the learned
-        rotation."""
+        """The angles (4,) [rad] at parameter ``s`` (clipped to the grid) on the tracker's
+        branch: the curve, or its twin ``c(-s) + pi/2``, turned by the learned rotation."""
         on_curve = self.on_curve(self.branch * s)
         on_curve[HALF_WAVE] += self._half_wave_frame
         return on_curve if self.branch == 1 else on_curve + QUARTER_TURN
@@ -147,8 +142,7 @@ class CurveTracker:
         than turn the plate back through its period."""
         if branch not in (1, -1):
             raise ValueError(f'branch must be 1 or -1, got {branch}')
-        self.active, self._wait = True, 0
-        self.branch = branch
+        self.active, self._wait, self.branch = True, 0, branch
         self.turner.cancel()
         self.turner.wait = 0
         self._recentre()
@@ -213,15 +207,12 @@ class CurveTracker:
                 return self._turning(float(objective))
         return self.curve(self.estimate + self.dither.sign * self.config.dither)
 
-    def _reference(self) -> float:
-        """The O a turn begun now is judged against: the median of the latest periods."""
-        return float(np.median(self._latest))
-
     def _begin_turn(self, current: np.ndarray) -> bool:
-        """Begin a turn at the estimate from the angles ``current`` (4,) [rad] (or not: False)."""
+        """Begin a turn at the estimate from the angles ``current`` (4,) [rad] (or not: False),
+        judged against the median O of the latest periods."""
         self._turn_side, self._before_turn = np.sign(self.estimate), (self.branch, self.estimate)
         return self.turner.begin(np.asarray(current, float), self.branch * self.estimate,
-                                 self._reference())
+                                 float(np.median(self._latest)))
 
     def _wants_other_branch(self) -> bool:
         """Whether to try the other branch: the estimate went ``mirror_margin`` past K = 0, or
@@ -312,15 +303,23 @@ class CurveTracker:
                                         / TRIAL_BLOCKS)
         if move:
             self.estimate = float(np.clip(self.estimate + move, self.grid[0], self.grid[-1]))
-        if (self.planner is not None and self._age > cfg.settle
-                and self.dither.blocks % PLAN_EVERY == 0):
-            u = self.branch * self.estimate
-            turn = self.planner.plan(u, self.rotation(u), self.dither.noise())
-            if turn:
-                self.rotation.move(u, turn)
-                self.planned = float(turn)
-                self._turn_at = u
-                self.dither.compared.clear()  # O moves with the turn: compare blocks after it
+        if self._age > cfg.settle and self.dither.blocks % PLAN_EVERY == 0:
+            self._turn_curve()
+
+    def _turn_curve(self, at_least: float = 0.0) -> bool:
+        """Turn the curve at the estimate's point by the planner's turn, if it expects a gain of
+        log O of ``at_least`` or more over holding; whether it turned."""
+        if self.planner is None:
+            return False
+        u, undone = self.branch * self.estimate, self.planner.undone
+        turn = self.planner.plan(u, self.rotation(u), self.dither.noise(), at_least)
+        if not turn:
+            return False
+        self.rotation.move(u, turn)
+        self.planned = float(turn)
+        self._turn_at = u
+        self.dither.compared.clear()  # O moves with the turn: compare blocks after it
+        return self.planner.undone == undone  # an earlier turn taken back is no gain
 
 
 class Dither:

@@ -121,6 +121,12 @@ def test_the_planner_turns_toward_the_best_rotation_within_its_trust_radius(toy_
     assert planner.plan(-0.1, 0.0) == 0.0
     planner.observe(np.exp(1.0), np.exp(3.0))
     assert planner.plan(-0.1, _best_turn(1.0)) == 0.0
+    # asked for at least a gain of log O: it turns only where it expects that much
+    gain = float(_toy_gain(0.0, 0.2, 0.1))       # the toy's gain of its best turn, +0.1 rad
+    for at_least, turns in ((0.5 * gain, True), (2.0 * gain, False)):
+        planner = RotationPlanner(toy_model, PlannerConfig(spread_penalty=0.0, online=False))
+        planner.observe(np.exp(0.2), np.exp(3.0))
+        assert (planner.plan(-0.1, 0.0, at_least=at_least) != 0.0) == turns
 
 
 def test_under_noise_the_planner_holds_where_the_gain_would_be_lost_in_the_noise(toy_model):

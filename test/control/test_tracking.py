@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from dlmpc_ros.control import branch_turn
 from dlmpc_ros.control.branch_turn import TURN_PERIODS, TurnEvent
 from dlmpc_ros.control.dlmpc import DLMPCController
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig, TrackingConfig
@@ -147,7 +148,9 @@ class _NoisePlanner:
     def __init__(self, told: list[float]) -> None:
         self.told, self.tracker = told, None
 
-    def plan(self, u: float, theta: float, noise: float = 0.0) -> float:
+    undone = 0
+
+    def plan(self, u: float, theta: float, noise: float = 0.0, at_least: float = 0.0) -> float:
         self.told.append(noise - self.tracker.dither.noise())
         return 0.0
 
@@ -555,3 +558,35 @@ def test_an_entry_keeps_the_half_wave_plate_in_the_frame_the_scan_locked_in():
         command = tracker.step(0.2, here)   # the dither moves alpha3 by 0.03
         assert abs(command[2] - on_curve[2] - frame) <= 0.03 + 1e-12, offset
         np.testing.assert_allclose(command[[1, 3]], on_curve[[1, 3]])
+
+
+class _GainPlanner:
+    """A planner that turns the curve by 0.05 rad whenever it is asked for no more than
+    ``gain`` of log O, and records what it was asked for."""
+
+    def __init__(self, gain: float) -> None:
+        self.gain, self.asked, self.undone = gain, [], 0
+
+    def plan(self, u: float, theta: float, noise: float = 0.0, at_least: float = 0.0) -> float:
+        self.asked.append(at_least)
+        return 0.05 if at_least <= self.gain else 0.0
+
+    def retract(self) -> float:
+        return 0.0
+
+
+def test_a_turn_to_a_weaker_branch_stays_where_a_turn_of_the_curve_is_predicted_to_do_better():
+    """The twin holds 0.18 after the turn, under the 0.2 before: it is kept only if the
+    planner expects turning the curve there to gain what the twin lacks,
+    log(1.005 x 0.2 / 0.18), and then the curve is turned at the landing."""
+    for gain, kept in ((0.2, True), (0.1, False)):
+        planner = _GainPlanner(gain)
+        tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=TrackingConfig(),
+                               planner=planner)
+        turner = tracker.turner
+        assert turner.begin(ANGLES[20], GRID[20], 0.2)
+        [turner.step(0.2) for _ in range(TURN_PERIODS)]
+        events = [turner.step(0.18)[1] for _ in range(branch_turn.VERIFY)]
+        assert events[-1] is (TurnEvent.KEPT if kept else TurnEvent.NONE)
+        assert turner.busy != kept
+        assert planner.asked == [pytest.approx(np.log(1.005 * 0.2 / 0.18))]
