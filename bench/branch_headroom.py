@@ -1,0 +1,66 @@
+"""Which branch holds more at a K once turned: the settled O along the curve and its twin.
+
+For one plant (``--plant-family`` seed, 0: the nominal cavity) at one K (``--k``, read as
+a diagnosis: no controller sees it), every curve point ``s`` of a 13-point grid over
+[-0.3, 0.3] on both branches (the curve ``c(s)``, the twin ``c(-s) + pi/2``) is turned by
+every ``theta`` of a 17-point grid over [-0.8, 0.8] rad (all four angles) and run 1,500
+round trips from the cavity's default state. Printed per branch, as fractions of the
+plant's envelope O*(K): the best O unturned, and the best over the turns with its theta
+and s (``bench/results/turn_rotation.md``)::
+
+    python bench/branch_headroom.py --plant-family 2 --k -0.3
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+POINTS = np.linspace(-0.3, 0.3, 13)
+TURNS = np.linspace(-0.8, 0.8, 17)
+ROUND_TRIPS = 1500
+
+
+def main(argv: list[str] | None = None) -> int:
+    from dlmpc_ros.core.cavity import Cavity
+    from dlmpc_ros.core.plants import NOMINAL, PlantFamily
+    from dlmpc_ros.core.symmetry import QUARTER_TURN
+    from dlmpc_ros.learning.curve import FILE_NAME, load_curve
+    from dlmpc_ros.learning.tables import load_baselines
+    from dlmpc_ros.training.envelope import cached_plant_envelope, draw_plant
+    p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    p.add_argument('--plant-family', type=int, default=0, help='family seed; 0: nominal')
+    p.add_argument('--k', type=float, required=True)
+    args = p.parse_args(argv)
+    tables = load_baselines(ROOT / 'models/oracle.npz')
+    if args.plant_family:
+        plant, _ = draw_plant(PlantFamily(), args.plant_family, tables)
+        envelope = cached_plant_envelope(plant, tables)
+    else:
+        plant, envelope = NOMINAL, tables
+    grid, angles, _ = load_curve(ROOT / 'models' / FILE_NAME)
+
+    def curve(u: np.ndarray) -> np.ndarray:
+        return np.stack([np.interp(u, grid, angles[:, j]) for j in range(4)], axis=1)
+
+    branches = (curve(POINTS), curve(-POINTS) + QUARTER_TURN)  # (13, 4) each
+    batch = np.concatenate([b + t for b in branches for t in TURNS])
+    cavity = Cavity(plant, batch=len(batch), angles=batch,
+                    birefringence=np.full(len(batch), args.k))
+    cavity.run(ROUND_TRIPS)
+    last = cavity.run(1).last()
+    objective = np.where(last.E > 0, last.E / last.M, 0.0).reshape(2, TURNS.size, POINTS.size)
+    star = float(np.interp(args.k, envelope['K'], envelope['O_star']))
+    print(f'plant {args.plant_family or "nominal"}, K {args.k:+.2f}, envelope O* {star:.4f}')
+    for name, o in zip(('curve', 'twin'), objective / star):
+        i, j = np.unravel_index(int(np.argmax(o)), o.shape)
+        print(f'{name}: unturned {o[TURNS.size // 2].max():.3f}; best {o[i, j]:.3f} at '
+              f'theta {TURNS[i]:+.2f} rad, s {POINTS[j]:+.2f}')
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
