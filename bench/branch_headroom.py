@@ -31,6 +31,7 @@ def main(argv: list[str] | None = None) -> int:
     from dlmpc_ros.learning.curve import FILE_NAME, load_curve
     from dlmpc_ros.learning.tables import load_baselines
     from dlmpc_ros.training.envelope import cached_plant_envelope, draw_plant
+    from dlmpc_ros.training.response import curve_angles
     p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     p.add_argument('--plant-family', type=int, default=0, help='family seed; 0: nominal')
     p.add_argument('--k', type=float, required=True)
@@ -42,11 +43,8 @@ def main(argv: list[str] | None = None) -> int:
     else:
         plant, envelope = NOMINAL, tables
     grid, angles, _ = load_curve(ROOT / 'models' / FILE_NAME)
-
-    def curve(u: np.ndarray) -> np.ndarray:
-        return np.stack([np.interp(u, grid, angles[:, j]) for j in range(4)], axis=1)
-
-    branches = (curve(POINTS), curve(-POINTS) + QUARTER_TURN)  # (13, 4) each
+    branches = (curve_angles(grid, angles, POINTS),  # (13, 4) each
+                curve_angles(grid, angles, -POINTS) + QUARTER_TURN)
     batch = np.concatenate([b + t for b in branches for t in TURNS])
     cavity = Cavity(plant, batch=len(batch), angles=batch,
                     birefringence=np.full(len(batch), args.k))
