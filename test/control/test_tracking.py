@@ -146,9 +146,7 @@ class _NoisePlanner:
     """A planner that never turns and records the noise it is told less the tracker's."""
 
     def __init__(self, told: list[float]) -> None:
-        self.told, self.tracker = told, None
-
-    undone = 0
+        self.told, self.tracker, self.undone = told, None, 0
 
     def plan(self, u: float, theta: float, noise: float = 0.0, at_least: float = 0.0) -> float:
         self.told.append(noise - self.tracker.dither.noise())
@@ -578,7 +576,7 @@ class _GainPlanner:
 def test_a_turn_to_a_weaker_branch_stays_where_a_turn_of_the_curve_is_predicted_to_do_better():
     """The twin holds 0.18 after the turn, under the 0.2 before: it is kept only if the
     planner expects turning the curve there to gain what the twin lacks,
-    log(1.005 x 0.2 / 0.18), and then the curve is turned at the landing."""
+    log(1.005 x 0.2 / 0.18), and then the curve is turned by the planner's turn."""
     for gain, kept in ((0.2, True), (0.1, False)):
         planner = _GainPlanner(gain)
         tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=TrackingConfig(),
@@ -588,5 +586,5 @@ def test_a_turn_to_a_weaker_branch_stays_where_a_turn_of_the_curve_is_predicted_
         [turner.step(0.2) for _ in range(TURN_PERIODS)]
         events = [turner.step(0.18)[1] for _ in range(branch_turn.VERIFY)]
         assert events[-1] is (TurnEvent.KEPT if kept else TurnEvent.NONE)
-        assert turner.busy != kept
+        assert turner.busy != kept and tracker.planned == (0.05 if kept else 0.0)
         assert planner.asked == [pytest.approx(np.log(1.005 * 0.2 / 0.18))]
