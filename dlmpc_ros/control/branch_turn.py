@@ -96,8 +96,7 @@ class BranchTurn:
 
     def tick(self) -> None:
         """One period passed (the cooldown runs down)."""
-        if self.wait > 0:
-            self.wait -= 1
+        self.wait = max(self.wait - 1, 0)
 
     def cancel(self) -> None:
         """Something else took over: forget the turn under way."""

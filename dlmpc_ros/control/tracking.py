@@ -45,8 +45,8 @@ DEADBAND = 5e-5
 #: Periods to wait after handing back before trying again (doubled, up to 64 x, after each
 #: failed entry).
 COOLDOWN = 50
-#: The O a branch turn is judged against: the median of this many latest periods (a pulse
-#: just formed swings by a factor of two; ``bench/results/entry_turn.md``).
+#: A branch turn is judged against the median O of this many latest periods (a pulse just
+#: formed swings by a factor of two; ``bench/results/entry_turn.md``), or the latest if lower.
 TURN_REFERENCE = 3
 #: The branch trial compares the mean O of the last this many blocks (both dither signs)
 #: with the best such mean on the branch (``bench/results/noise_levels.md``).
@@ -90,8 +90,7 @@ class CurveTracker:
         self.config = config or TrackingConfig()
         self.threshold = float(threshold)
         self.limits = limits or AngleLimits()
-        self.active = False
-        self.branch = 1           # 1: on the curve; -1: on its mirror twin
+        self.active, self.branch = False, 1  # tracking; 1: on the curve, -1: on its mirror twin
         self.turner = BranchTurn(self.config.turn_guard, self.limits, self.on_curve,
                                  self._turn_curve)
         self._before_turn = (1, 0.0)  # (branch, estimate) where the latest turn began
@@ -99,8 +98,7 @@ class CurveTracker:
         #: O of the consecutive locked periods while not tracking (the latest few)
         self._recent: deque[float] = deque(maxlen=self.config.entry_patience)
         self._entry_objective = 0.0
-        self._wait = 0            # cooldown periods left
-        self._cooldown = COOLDOWN
+        self._wait, self._cooldown = 0, COOLDOWN  # cooldown periods left; the next cooldown
         self.dither = Dither(self.config)
         #: O of the latest ``TURN_REFERENCE`` periods (the O before a turn is their median)
         self._latest: deque[float] = deque(maxlen=TURN_REFERENCE)
@@ -202,30 +200,35 @@ class CurveTracker:
         move = self.dither.add(float(objective), compare=self._age > self.config.settle)
         if move is not None:  # a dither block closed
             self._end_block(float(objective), move)
-            if current is not None and self._wants_other_branch() \
-                    and self._begin_turn(current):
+            reference = self._branch_trial() if current is not None else None
+            if reference is not None and self._begin_turn(current, reference):
                 return self._turning(float(objective))
         return self.curve(self.estimate + self.dither.sign * self.config.dither)
 
-    def _begin_turn(self, current: np.ndarray) -> bool:
+    def _begin_turn(self, current: np.ndarray, reference: float | None = None) -> bool:
         """Begin a turn at the estimate from the angles ``current`` (4,) [rad] (or not: False),
-        judged against the median O of the latest periods."""
+        judged against ``reference`` (default: the median O of the latest periods)."""
         self._turn_side, self._before_turn = np.sign(self.estimate), (self.branch, self.estimate)
-        return self.turner.begin(np.asarray(current, float), self.branch * self.estimate,
-                                 float(np.median(self._latest)))
+        reference = float(np.median(self._latest)) if reference is None else reference
+        return self.turner.begin(current, self.branch * self.estimate, reference)
 
-    def _wants_other_branch(self) -> bool:
-        """Whether to try the other branch: the estimate went ``mirror_margin`` past K = 0, or
-        the mean O of the last ``TRIAL_BLOCKS`` blocks fell ``trial_drop`` under its best on
-        the branch. The wait after a turn holds both back but a crossing of 0 since a turn
-        that kept the pulse began (past 0 the branches are another question)."""
+    def _branch_trial(self) -> float | None:
+        """The O to judge a try of the other branch against, or None (no try now). The estimate
+        went ``mirror_margin`` past K = 0: the median O of the latest periods; the mean O of
+        the last ``TRIAL_BLOCKS`` blocks fell ``trial_drop`` under its best on the branch: the
+        O it fell to, if lower (``bench/results/fell_reference.md``). The wait after a turn
+        holds both back but a crossing of 0 since a turn that kept the pulse began."""
         cfg = self.config
         past_zero = self.branch * self.estimate > cfg.mirror_margin
         if self.turner.wait > 0 and not (past_zero and np.sign(self.estimate) == -self._turn_side):
-            return False
+            return None
+        median = float(np.median(self._latest))
+        if past_zero:
+            return median
         values = self._trial_values  # cleared with the best: no values, no best yet
-        return (past_zero or bool(values)
-                and sum(values) / len(values) < (1 - cfg.trial_drop) * self._branch_best)
+        if values and sum(values) / len(values) < (1 - cfg.trial_drop) * self._branch_best:
+            return min(median, self._latest[-1])
+        return None
 
     def _turning(self, objective: float) -> np.ndarray:
         """A period of a branch turn: its command (on trial: the new branch's point at the
@@ -277,17 +280,15 @@ class CurveTracker:
     def _forget_unjudged_turn(self) -> None:
         """Take back the planner's latest turn, not judged yet (the laser lost what it had),
         from the curve's memory too, lest it stay where K will come by again."""
-        if self.planner is not None:
-            turn = self.planner.retract()
-            if turn:
-                self.rotation.move(self._turn_at, -turn)
-                self.planned = -float(turn)
+        turn = self.planner.retract() if self.planner is not None else 0.0
+        if turn:
+            self.rotation.move(self._turn_at, -turn)
+            self.planned = -float(turn)
 
     def _leave(self, failed: bool) -> None:
         """Hand back and wait a cooldown (doubled, up to 64 x, after a failed entry)."""
-        self.active = False
+        self.active, self._wait = False, self._cooldown
         self._recent.clear()
-        self._wait = self._cooldown
         if failed:
             self._cooldown = min(2 * self._cooldown, 64 * COOLDOWN)
 

@@ -588,3 +588,27 @@ def test_a_turn_to_a_weaker_branch_stays_where_a_turn_of_the_curve_is_predicted_
         assert events[-1] is (TurnEvent.KEPT if kept else TurnEvent.NONE)
         assert turner.busy != kept and tracker.planned == (0.05 if kept else 0.0)
         assert planner.asked == [pytest.approx(np.log(1.005 * 0.2 / 0.18))]
+
+
+def test_a_turn_asked_for_because_o_fell_is_judged_against_the_o_it_fell_to():
+    """O falls from 0.15 to 0.10 in the last period of a dither block (K stepped): the
+    branch trial fires at once, while the median of the latest periods still holds 0.15.
+    The twin then holds 0.12: better than the 0.10 the laser fell to, so the turn stays
+    (against the stale 0.15 it would go back to the 0.10); a twin holding 0.09 goes back."""
+    cfg = TrackingConfig(settle=0, entry_trial_after=NEVER, mirror_margin=0.5)
+    for landed, kept in ((0.12, True), (0.09, False)):
+        tracker = CurveTracker(GRID, ANGLES, threshold=0.05, config=cfg)
+        tracker.enter_at(-0.1, 1, 0.15)
+        current, o = tracker.curve(tracker.estimate), 0.15
+        for t in range(12 * cfg.block):
+            if t == 9 * cfg.block - 1:  # the last period of the ninth block
+                o = 0.10
+            current = tracker.limits.apply(current, tracker.step(o, current))
+            if tracker.turner.busy:
+                break
+        assert t == 9 * cfg.block - 1  # begun in the period of the fall
+        script = [0.11] * (TURN_PERIODS - 1) + [landed] * branch_turn.VERIFY + [0.10] * 10
+        for o in script:
+            current = tracker.limits.apply(current, tracker.step(o, current))
+        assert (tracker.branch, tracker.turner.made, tracker.turner.rejected) == \
+            ((-1, 1, 0) if kept else (1, 0, 1))
