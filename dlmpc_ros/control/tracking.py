@@ -100,7 +100,7 @@ class CurveTracker:
         self._entry_objective = 0.0
         self._wait, self._cooldown = 0, COOLDOWN  # cooldown periods left; the next cooldown
         self.dither = Dither(self.config)
-        #: O of the latest ``TURN_REFERENCE`` periods (the O before a turn is their median)
+        #: O of the latest ``TURN_REFERENCE`` periods (a turn is judged against their median)
         self._latest: deque[float] = deque(maxlen=TURN_REFERENCE)
         self.rotation = CurveRotation(self.grid[0], self.grid[-1], ROTATION_KNOTS,
                                       ROTATION_LIMIT, ROTATION_SPREAD)
