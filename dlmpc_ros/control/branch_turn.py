@@ -77,9 +77,8 @@ class BranchTurn:
         self.on_curve = on_curve
         self.turn_curve = turn_curve
         self.direction = -1.0    # the way round that kept the pulse last
-        self.made = 0            # turns kept
-        self.abandoned = 0       # turns given up because O fell (pulse going)
-        self.rejected = 0        # turns taken back because the other branch was no better
+        # turns kept; given up because O fell (pulse going); taken back (the other no better)
+        self.made = self.abandoned = self.rejected = 0
         self.wait = 0            # periods before the next turn may start
         self._path: list[np.ndarray] = []    # commands still to send
         self._issued: list[np.ndarray] = []  # commands of this turn sent so far

@@ -44,8 +44,7 @@ class AcquireMode(Mode):
     name = 'acquire'
 
     def __init__(self, supervisor: LockSupervisor, tracker: CurveTracker | None = None) -> None:
-        self.supervisor = supervisor
-        self.tracker = tracker
+        self.supervisor, self.tracker = supervisor, tracker
 
     def decide(self, period: Period) -> Decision | None:
         scan = self.supervisor.step(period.objective, period.current, period.surrogate,
@@ -54,8 +53,7 @@ class AcquireMode(Mode):
             return Decision(scan, self.name, travel=self.supervisor.travelling)
         point = self.supervisor.locked_at
         if point is not None and point.branch and self.tracker is not None:
-            self.tracker.enter_at(point.estimate, point.branch, period.objective,
-                                  period.current)
+            self.tracker.enter_at(point.estimate, point.branch, period.objective, period.current)
         return None
 
 
@@ -103,11 +101,8 @@ class DLMPCController:
                  rotation_prior: tuple[np.ndarray, np.ndarray] | None = None,
                  turn_correction: np.ndarray | None = None) -> None:
         self.config = config or DLMPCConfig()
-        self.turn_correction = turn_correction
-        self.target_objective = target_objective
-        self.curve = curve
-        self.response = response
-        self.rotation_prior = rotation_prior
+        self.target_objective, self.curve, self.response = target_objective, curve, response
+        self.rotation_prior, self.turn_correction = rotation_prior, turn_correction
         self.kmap = kmap
         self.model = mprnn
         self.model.kmap = kmap

@@ -40,6 +40,9 @@ ROTATION_LIMIT = 1.0
 #: A turn at one point also turns the knots not yet turned by turn x
 #: exp(-(distance / ROTATION_SPREAD)^2 / 2) (K units; ``bench/results/rotation_spread.md``).
 ROTATION_SPREAD = 0.1
+#: How far past its ends (K units) the tracker follows the curve, along straight lines fitted
+#: to the curve's last REACH at each end (its best point often lies past an end).
+REACH = 0.1
 #: Relative O difference below which the estimate does not move.
 DEADBAND = 5e-5
 #: Periods to wait after handing back before trying again (doubled, up to 64 x, after each
@@ -80,11 +83,13 @@ class CurveTracker:
     """
 
     def __init__(self, grid: np.ndarray, angles: np.ndarray, threshold: float,
-                 config: TrackingConfig | None = None,
-                 expected: np.ndarray | None = None,
+                 config: TrackingConfig | None = None, expected: np.ndarray | None = None,
                  limits: AngleLimits | None = None,
                  planner: RotationPlanner | None = None) -> None:
         self.grid, self.angles, self.expected = check_curve(grid, angles, expected)
+        self.low, self.high = self.grid[0] - REACH, self.grid[-1] + REACH  # the estimate's range
+        ends = (self.grid <= self.grid[0] + REACH, self.grid >= self.grid[-1] - REACH)
+        self._slopes = [np.polyfit(self.grid[e], self.angles[e], 1)[0] for e in ends]  # (4,)
         if not threshold > 0:
             raise ValueError(f'lock threshold must be > 0, got {threshold}')
         self.config = config or TrackingConfig()
@@ -127,9 +132,10 @@ class CurveTracker:
     def on_curve(self, u: float) -> np.ndarray:
         """The curve's angles (4,) [rad] at ``u`` (clipped to the grid), turned by the
         rotation learned there."""
-        u = float(np.clip(u, self.grid[0], self.grid[-1]))
-        return np.array([np.interp(u, self.grid, self.angles[:, j]) for j in range(4)]) \
-            + self.rotation(u)
+        u = float(np.clip(u, self.low, self.high))
+        inside = float(np.clip(u, self.grid[0], self.grid[-1]))
+        return np.array([np.interp(inside, self.grid, self.angles[:, j]) for j in range(4)]) \
+            + (u - inside) * self._slopes[int(u > inside)] + self.rotation(u)
 
     def enter_at(self, estimate: float, branch: int, objective: float,
                  current: np.ndarray | None = None) -> None:
@@ -144,10 +150,9 @@ class CurveTracker:
         self.turner.cancel()
         self.turner.wait = 0
         self._recentre()
-        self.estimate = float(np.clip(estimate, self.grid[0], self.grid[-1]))
+        self.estimate = float(np.clip(estimate, self.low, self.high))
         self._entry_objective = float(objective) if np.isfinite(objective) else 0.0
-        self._entry_trial = True
-        self._half_wave_frame = 0.0
+        self._entry_trial, self._half_wave_frame = True, 0.0
         if current is not None:
             gap = float(current[HALF_WAVE]) - self.curve(self.estimate)[HALF_WAVE]
             self._half_wave_frame = QUARTER_TURN * float(abs(wrap_angles(gap)) > np.pi / 4)
@@ -273,8 +278,7 @@ class CurveTracker:
         self._trial_values: deque[float] = deque(maxlen=TRIAL_BLOCKS)
         self._entry_trial = False  # the other branch is still to be tried after entry
         # the start point on the branch the tracker is on (its twin on the mirror branch)
-        self.estimate = self.branch * float(np.clip(self.config.start, self.grid[0],
-                                                    self.grid[-1]))
+        self.estimate = self.branch * float(np.clip(self.config.start, self.low, self.high))
         self.dither.restart()
 
     def _forget_unjudged_turn(self) -> None:
@@ -303,7 +307,7 @@ class CurveTracker:
                 self._branch_best = max(self._branch_best, sum(self._trial_values)
                                         / TRIAL_BLOCKS)
         if move:
-            self.estimate = float(np.clip(self.estimate + move, self.grid[0], self.grid[-1]))
+            self.estimate = float(np.clip(self.estimate + move, self.low, self.high))
         if self._age > cfg.settle and self.dither.blocks % PLAN_EVERY == 0:
             self._turn_curve()
 
@@ -313,7 +317,8 @@ class CurveTracker:
         if self.planner is None:
             return False
         u, undone = self.branch * self.estimate, self.planner.undone
-        turn = self.planner.plan(u, self.rotation(u), self.dither.noise(), at_least)
+        turn = self.planner.plan(float(np.clip(u, self.grid[0], self.grid[-1])), self.rotation(u),
+                                 self.dither.noise(), at_least)
         if not turn:
             return False
         self.rotation.move(u, turn)

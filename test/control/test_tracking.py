@@ -612,3 +612,16 @@ def test_a_turn_asked_for_because_o_fell_is_judged_against_the_o_it_fell_to():
             current = tracker.limits.apply(current, tracker.step(o, current))
         assert (tracker.branch, tracker.turner.made, tracker.turner.rejected) == \
             ((-1, 1, 0) if kept else (1, 0, 1))
+
+
+def test_past_the_curves_end_the_tracker_follows_it_along_its_end_line():
+    """The laser's best point lies past the curve's end (s = 0.36 on a curve over
+    [-0.3, 0.3]): the tracker follows the curve on along the line fitted to its last
+    ``REACH`` and settles at the peak, not pinned at the end; no further than ``REACH``."""
+    cfg = TrackingConfig(entry_patience=1, settle=0, step=0.01, start=0.2)
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
+    assert np.allclose(tracker.on_curve(0.35), [0.7, 0.1, 0.15, 0.3])  # the toy's own line
+    est, _ = _drive(tracker, lambda t: 0.36, 800)
+    assert abs(np.nanmean(est[-60:]) - 0.36) < 0.02
+    est, _ = _drive(tracker, lambda t: 0.6, 800)
+    assert np.nanmax(est) == pytest.approx(0.3 + tracking.REACH)
