@@ -123,15 +123,15 @@ class CurveTracker:
         return TrackerState.TURN if self.turner.busy else TrackerState.DITHER
 
     def curve(self, s: float) -> np.ndarray:
-        """The angles (4,) [rad] at parameter ``s`` (clipped to the grid) on the tracker's
+        """The angles (4,) [rad] at parameter ``s`` (within ``REACH`` of the grid) on the tracker's
         branch: the curve, or its twin ``c(-s) + pi/2``, turned by the learned rotation."""
         on_curve = self.on_curve(self.branch * s)
         on_curve[HALF_WAVE] += self._half_wave_frame
         return on_curve if self.branch == 1 else on_curve + QUARTER_TURN
 
     def on_curve(self, u: float) -> np.ndarray:
-        """The curve's angles (4,) [rad] at ``u`` (clipped to the grid), turned by the
-        rotation learned there."""
+        """The curve's angles (4,) [rad] at ``u`` (within ``REACH`` of the grid; past its ends on
+        their fitted lines), turned by the rotation learned there."""
         u = float(np.clip(u, self.low, self.high))
         inside = float(np.clip(u, self.grid[0], self.grid[-1]))
         return np.array([np.interp(inside, self.grid, self.angles[:, j]) for j in range(4)]) \
