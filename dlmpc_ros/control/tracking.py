@@ -316,9 +316,9 @@ class CurveTracker:
         log O of ``at_least`` or more over holding; whether it turned."""
         if self.planner is None:
             return False
-        u, undone = self.branch * self.estimate, self.planner.undone
-        turn = self.planner.plan(float(np.clip(u, self.grid[0], self.grid[-1])), self.rotation(u),
-                                 self.dither.noise(), at_least)
+        u = float(np.clip(self.branch * self.estimate, self.grid[0], self.grid[-1]))  # on the grid
+        undone = self.planner.undone
+        turn = self.planner.plan(u, self.rotation(u), self.dither.noise(), at_least)
         if not turn:
             return False
         self.rotation.move(u, turn)
