@@ -6,9 +6,12 @@ a diagnosis: no controller sees it), every curve point ``s`` of a 13-point grid 
 every ``theta`` of a 17-point grid over [-0.8, 0.8] rad (all four angles) and run 1,500
 round trips from the cavity's default state. Printed per branch, as fractions of the
 plant's envelope O*(K): the best O unturned, and the best over the turns with its theta
-and s (``bench/results/turn_rotation.md``)::
+and s (``bench/results/turn_rotation.md``). With ``--profile``, instead the settled O
+unturned at each point the acquisition scan visits (``CURVE_POINTS``, past the curve's end
+on the tracker's lines), on the curve ``c(u)`` and on its twin ``c(u) + pi/2``
+(``bench/results/scan_from_reach.md``)::
 
-    python bench/branch_headroom.py --plant-family 2 --k -0.3
+    python bench/branch_headroom.py --plant-family 2 --k -0.3 [--profile]
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     p.add_argument('--plant-family', type=int, default=0, help='family seed; 0: nominal')
     p.add_argument('--k', type=float, required=True)
+    p.add_argument('--profile', action='store_true', help='O at the scan points, unturned')
     args = p.parse_args(argv)
     tables = load_baselines(ROOT / 'models/oracle.npz')
     if args.plant_family:
@@ -43,6 +47,8 @@ def main(argv: list[str] | None = None) -> int:
     else:
         plant, envelope = NOMINAL, tables
     grid, angles, _ = load_curve(ROOT / 'models' / FILE_NAME)
+    if args.profile:
+        return profile(plant, envelope, args.k, grid, angles)
     branches = (curve_angles(grid, angles, POINTS),  # (13, 4) each
                 curve_angles(grid, angles, -POINTS) + QUARTER_TURN)
     batch = np.concatenate([b + t for b in branches for t in TURNS])
@@ -57,6 +63,26 @@ def main(argv: list[str] | None = None) -> int:
         i, j = np.unravel_index(int(np.argmax(o)), o.shape)
         print(f'{name}: unturned {o[TURNS.size // 2].max():.3f}; best {o[i, j]:.3f} at '
               f'theta {TURNS[i]:+.2f} rad, s {POINTS[j]:+.2f}')
+    return 0
+
+
+def profile(plant, envelope: dict, k: float, grid: np.ndarray, angles: np.ndarray) -> int:
+    """Print the settled O / O*(K) at the scan's points on the curve and its twin."""
+    from dlmpc_ros.control.acquisition import CURVE_POINTS
+    from dlmpc_ros.control.tracking import CurveTracker
+    from dlmpc_ros.core.cavity import Cavity
+    from dlmpc_ros.core.symmetry import QUARTER_TURN
+    tracker = CurveTracker(grid, angles, threshold=1.0)
+    points = np.array([tracker.on_curve(u) for u in CURVE_POINTS])  # (9, 4)
+    batch = np.concatenate([points, points + QUARTER_TURN])
+    cavity = Cavity(plant, batch=len(batch), angles=batch, birefringence=np.full(len(batch), k))
+    cavity.run(ROUND_TRIPS)
+    last = cavity.run(1).last()
+    objective = np.where(last.E > 0, last.E / last.M, 0.0).reshape(2, len(CURVE_POINTS))
+    star = float(np.interp(k, envelope['K'], envelope['O_star']))
+    print(f'K {k:+.2f}, O* {star:.4f}; u ' + ' '.join(f'{u:+.2f}' for u in CURVE_POINTS))
+    for name, o in zip(('curve', 'twin '), objective / star):
+        print(f'{name}' + ' ' * 21 + ' '.join(f'{x:5.2f}' for x in o))
     return 0
 
 

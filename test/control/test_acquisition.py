@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from dlmpc_ros.control.acquisition import TRAVEL_PERIODS, WEAK_FIELD, LockSupervisor, ScanPoint
+from dlmpc_ros.control.acquisition import (CURVE_POINTS, TRAVEL_PERIODS, WEAK_FIELD,
+                                          LockSupervisor, ScanPoint)
 from dlmpc_ros.control.dlmpc import DLMPCController
 from dlmpc_ros.control.dlmpc_config import AcquisitionConfig, DLMPCConfig
 from dlmpc_ros.control.limits import AngleLimits
@@ -123,8 +124,12 @@ def test_with_a_tracking_curve_the_scan_visits_the_curve_and_its_twin_and_tracki
     config = DLMPCConfig(acquisition=acquisition, error_threshold=1e6,
                          limits=AngleLimits(max_step=10.0))  # servos arrive at once
     ctrl = DLMPCController(kmap, mprnn, config, target_objective=0.2, curve=curve)
-    first = curve[1][np.searchsorted(GRID, -0.25 - 1e-9)]     # c(-0.25)
-    twin = first + np.pi / 2                                   # its twin, estimate 0.25
+    reach = ctrl.tracker.low                                   # the end of the tracker's reach
+    assert reach < GRID[0] and CURVE_POINTS[0] == pytest.approx(reach)
+    assert np.all(np.diff(CURVE_POINTS) > 0)                   # from there inward
+    first = ctrl.tracker.on_curve(reach)                       # c(-0.4), past the curve's end
+    np.testing.assert_allclose(first[0], 2 * reach)            # on the end's line
+    twin = first + np.pi / 2                                   # its twin, estimate 0.4
     angles = twin + 0.05  # nearer the twin than the curve point: the twin is scanned first
     targets = []
     for _ in range(6):  # O = 0.3 / 30 = 0.01: off the pulse; no surrogate: hold, then scan
@@ -134,9 +139,9 @@ def test_with_a_tracking_curve_the_scan_visits_the_curve_and_its_twin_and_tracki
     assert [m for m, _ in targets] == ['hold'] * 2 + ['acquire'] * 4
     np.testing.assert_allclose(np.cos(2 * (targets[2][1] - twin)), 1.0, atol=1e-9)  # twin
     np.testing.assert_allclose(np.cos(2 * (targets[4][1] - first)), 1.0, atol=1e-9)  # curve
-    step = ctrl.step(np.r_[6.0, 30.0, angles], 0.0)           # O = 0.2: locked at c(-0.25)
+    step = ctrl.step(np.r_[6.0, 30.0, angles], 0.0)           # O = 0.2: locked at c(-0.4)
     assert step.mode == 'track' and ctrl.tracker.active
-    assert ctrl.tracker.branch == 1 and ctrl.tracker.estimate == pytest.approx(-0.25)
+    assert ctrl.tracker.branch == 1 and ctrl.tracker.estimate == pytest.approx(reach)
 
 
 class _Pairs:
