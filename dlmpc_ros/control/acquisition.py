@@ -38,10 +38,8 @@ LEVEL_DECAY = 0.9995
 LEVEL_WINDOW = 3
 #: Room [rad] the scan leaves each servo from its range's ends (for the tracker's turns).
 TURN_ROOM = 2.0
-#: Curve parameters u (K units) the curve scan visits, each with its mirror twin, in order:
-#: from the end of the tracker's reach (the curve's end less ``tracking.REACH``) inward. There
-#: the better branch holds a pulse at every K profiled; at -0.25 it may hold none at
-#: |K| = 0.3 while the other one locks (``bench/results/scan_from_reach.md``).
+#: Curve parameters u (K units) the scan visits, each with its twin: from the end of the
+#: tracker's reach inward (there the better branch locks at any K, ``scan_from_reach.md``).
 CURVE_POINTS = (-0.4, -0.35, -0.3, -0.25, -0.2, -0.15, -0.1, -0.05, 0.0)
 #: A point's field is dead under this fraction of the latest locked period's E (dead points
 #: read 0.07-0.18 of it in development traces, others >= 0.5; ``scan_sweep.md``).

@@ -84,16 +84,15 @@ class CurveTracker:
 
     def __init__(self, grid: np.ndarray, angles: np.ndarray, threshold: float,
                  config: TrackingConfig | None = None, expected: np.ndarray | None = None,
-                 limits: AngleLimits | None = None,
-                 planner: RotationPlanner | None = None) -> None:
+                 limits: AngleLimits | None = None, planner: RotationPlanner | None = None
+                 ) -> None:
         self.grid, self.angles, self.expected = check_curve(grid, angles, expected)
         self.low, self.high = self.grid[0] - REACH, self.grid[-1] + REACH  # the estimate's range
         ends = (self.grid <= self.grid[0] + REACH, self.grid >= self.grid[-1] - REACH)
         self._slopes = [np.polyfit(self.grid[e], self.angles[e], 1)[0] for e in ends]  # (4,)
         if not threshold > 0:
             raise ValueError(f'lock threshold must be > 0, got {threshold}')
-        self.config = config or TrackingConfig()
-        self.threshold = float(threshold)
+        self.config, self.threshold = config or TrackingConfig(), float(threshold)
         self.limits = limits or AngleLimits()
         self.active, self.branch = False, 1  # tracking; 1: on the curve, -1: on its mirror twin
         self.turner = BranchTurn(self.config.turn_guard, self.limits, self.on_curve,
@@ -104,12 +103,11 @@ class CurveTracker:
         self._recent: deque[float] = deque(maxlen=self.config.entry_patience)
         self._entry_objective = 0.0
         self._wait, self._cooldown = 0, COOLDOWN  # cooldown periods left; the next cooldown
-        self.dither = Dither(self.config)
+        self.dither, self.planner = Dither(self.config), planner
         #: O of the latest ``TURN_REFERENCE`` periods (a turn is judged against their median)
         self._latest: deque[float] = deque(maxlen=TURN_REFERENCE)
         self.rotation = CurveRotation(self.grid[0], self.grid[-1], ROTATION_KNOTS,
                                       ROTATION_LIMIT, ROTATION_SPREAD)
-        self.planner = planner
         self._turn_at, self.planned = 0.0, 0.0  # u of the latest planned turn; this period's
         #: 0, or a quarter turn where the scan locked with the half-wave plate turned so
         self._half_wave_frame = 0.0
@@ -161,6 +159,7 @@ class CurveTracker:
         """Something else took over (the acquisition scan): stop and wait a cooldown. The
         pulse was lost on the turned curve: its rotation goes back to the run's start."""
         self.turner.cancel()
+        self._left_at = None  # the scan moves the angles
         if self.active:
             self._forget_unjudged_turn()
             self.rotation.forget()
@@ -191,6 +190,7 @@ class CurveTracker:
             if self._low >= self.config.guard_periods:  # the entry failed
                 self._forget_unjudged_turn()
                 self._leave(failed=True)
+                self._left_at = self.estimate  # the angles hold there: the next entry too
                 return None
             if self._age == self.config.settle + 2 * self.config.block:
                 self._cooldown = COOLDOWN  # a successful entry resets it
@@ -264,21 +264,22 @@ class CurveTracker:
             return None
         self.active = True
         self._entry_objective = float(np.median(self._recent))
-        self._recentre()
+        self._recentre(self._left_at)
         self._entry_trial = True
         return self.curve(self.estimate + self.dither.sign * self.config.dither)
 
-    def _recentre(self) -> None:
-        """Put the estimate back to ``start`` and the dither to its first block."""
-        # periods since entry; consecutive periods under the guard
-        self._age, self._low = 0, 0
+    def _recentre(self, at: float | None = None) -> None:
+        """Put the estimate at ``at`` (None: back to ``start``), the dither to its first block."""
+        # periods since entry; consecutive periods under the guard; where a failed entry left
+        self._age, self._low, self._left_at = 0, 0, None
         self._settling: list[float] = []  # O measured while settling after entry
         self._branch_best = 0.0  # best block O since the branch was last chosen
         #: O of the last ``TRIAL_BLOCKS`` blocks since then (their mean: the trial's O)
         self._trial_values: deque[float] = deque(maxlen=TRIAL_BLOCKS)
         self._entry_trial = False  # the other branch is still to be tried after entry
         # the start point on the branch the tracker is on (its twin on the mirror branch)
-        self.estimate = self.branch * float(np.clip(self.config.start, self.low, self.high))
+        start = self.branch * float(np.clip(self.config.start, self.low, self.high))
+        self.estimate = start if at is None else at
         self.dither.restart()
 
     def _forget_unjudged_turn(self) -> None:
@@ -384,8 +385,7 @@ class Dither:
         cfg = self.config
         if cfg.noise_deadband <= 0 or len(self._jitter) < 8:
             return DEADBAND
-        return max(DEADBAND,
-                   cfg.noise_deadband * self.noise() * np.sqrt(1.5))
+        return max(DEADBAND, cfg.noise_deadband * self.noise() * np.sqrt(1.5))
 
     def noise(self) -> float:
         """The measurement noise read off the run: the standard deviation of one period's
