@@ -42,9 +42,9 @@ class AcquisitionConfig:
 class TrackingConfig:
     """Settings of the curve tracker (times in control periods; ``s`` in K's units)."""
 
-    start: float = setting(-0.1, 'curve parameter where tracking starts after locked '
-                           'periods without a scan (K units; a point that locks from most '
-                           'pulses)', -1.0, 1.0)
+    start: float = setting(-0.1, 'curve parameter of the first entry after locked periods '
+                           'without a scan (K units; later ones start where a failed entry '
+                           'left the angles)', -1.0, 1.0)
     dither: float = setting(0.03, 'half-amplitude of the dither on the curve parameter '
                             '(K units)', 1e-9, 1.0)
     block: int = setting(3, 'control periods per dither half', 1, 10_000)

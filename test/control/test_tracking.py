@@ -142,7 +142,6 @@ def test_a_failed_entry_hands_back_and_waits_a_growing_cooldown_later_the_guard_
     assert tracker._cooldown == 2 * COOLDOWN
 
 
-
 def test_after_a_failed_entry_the_tracker_enters_again_where_it_left_the_angles():
     """The hold after a failed entry keeps the curve point the tracker left at; the next
     entry at those held angles starts there, not at the start point (only the run's first
@@ -150,18 +149,21 @@ def test_after_a_failed_entry_the_tracker_enters_again_where_it_left_the_angles(
     cfg = TrackingConfig(entry_patience=2, settle=4, guard=0.9, guard_periods=2,
                          block=2, start=0.0)
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
-    while not tracker.active:
+    for _ in range(cfg.entry_patience):
         tracker.step(0.2)
-    assert tracker.estimate == pytest.approx(0.0)  # the first entry: at the start point
+    assert tracker.active and tracker.estimate == pytest.approx(0.0)  # the first: at start
     tracker.estimate = 0.25                       # as if the dither had taken it there
-    while tracker.active:
+    for _ in range(cfg.settle + 2 * cfg.block):
         held = tracker.step(0.15)                 # 0.15 < 0.9 x 0.2: the entry fails
+        if not tracker.active:
+            break
     left = tracker.estimate
-    assert held is None and left == pytest.approx(0.25, abs=0.05)
+    assert not tracker.active and held is None and left == pytest.approx(0.25, abs=0.05)
     for _ in range(4 * COOLDOWN):                 # the angles held; the laser stays locked
         if tracker.step(0.2) is not None:
             break
     assert tracker.active and tracker.estimate == pytest.approx(left)
+
 
 class _NoisePlanner:
     """A planner that never turns and records the noise it is told less the tracker's."""
