@@ -302,7 +302,7 @@ class CurveTracker:
         the estimate by ``move``; every ``PLAN_EVERY`` blocks, turn the curve at the
         estimate's point by the planner's turn."""
         cfg = self.config
-        if self._age > cfg.settle and cfg.trial_drop > 0 and np.isfinite(objective):
+        if cfg.trial_drop > 0 and np.isfinite(objective):
             self._trial_values.append(objective)
             if len(self._trial_values) == TRIAL_BLOCKS:
                 self._branch_best = max(self._branch_best, sum(self._trial_values)
