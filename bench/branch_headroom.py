@@ -27,8 +27,18 @@ TURNS = np.linspace(-0.8, 0.8, 17)
 ROUND_TRIPS = 1500
 
 
-def main(argv: list[str] | None = None) -> int:
+def settled_ratio(plant, envelope: dict, k: float, batch: np.ndarray) -> np.ndarray:
+    """Each angle set (n, 4) [rad] of ``batch`` run ``ROUND_TRIPS`` round trips from the
+    cavity's default state at K = ``k``: its settled O over the envelope's O*(K), (n,)."""
     from dlmpc_ros.core.cavity import Cavity
+    cavity = Cavity(plant, batch=len(batch), angles=batch, birefringence=np.full(len(batch), k))
+    cavity.run(ROUND_TRIPS)
+    last = cavity.run(1).last()
+    star = float(np.interp(k, envelope['K'], envelope['O_star']))
+    return np.where(last.E > 0, last.E / last.M, 0.0) / star
+
+
+def main(argv: list[str] | None = None) -> int:
     from dlmpc_ros.core.plants import NOMINAL, PlantFamily
     from dlmpc_ros.core.symmetry import QUARTER_TURN
     from dlmpc_ros.learning.curve import FILE_NAME, load_curve
@@ -52,14 +62,10 @@ def main(argv: list[str] | None = None) -> int:
     branches = (curve_angles(grid, angles, POINTS),  # (13, 4) each
                 curve_angles(grid, angles, -POINTS) + QUARTER_TURN)
     batch = np.concatenate([b + t for b in branches for t in TURNS])
-    cavity = Cavity(plant, batch=len(batch), angles=batch,
-                    birefringence=np.full(len(batch), args.k))
-    cavity.run(ROUND_TRIPS)
-    last = cavity.run(1).last()
-    objective = np.where(last.E > 0, last.E / last.M, 0.0).reshape(2, TURNS.size, POINTS.size)
+    ratio = settled_ratio(plant, envelope, args.k, batch).reshape(2, TURNS.size, POINTS.size)
     star = float(np.interp(args.k, envelope['K'], envelope['O_star']))
     print(f'plant {args.plant_family or "nominal"}, K {args.k:+.2f}, envelope O* {star:.4f}')
-    for name, o in zip(('curve', 'twin'), objective / star):
+    for name, o in zip(('curve', 'twin'), ratio):
         i, j = np.unravel_index(int(np.argmax(o)), o.shape)
         print(f'{name}: unturned {o[TURNS.size // 2].max():.3f}; best {o[i, j]:.3f} at '
               f'theta {TURNS[i]:+.2f} rad, s {POINTS[j]:+.2f}')
@@ -70,18 +76,14 @@ def profile(plant, envelope: dict, k: float, grid: np.ndarray, angles: np.ndarra
     """Print the settled O / O*(K) at the scan's points on the curve and its twin."""
     from dlmpc_ros.control.acquisition import CURVE_POINTS
     from dlmpc_ros.control.tracking import CurveTracker
-    from dlmpc_ros.core.cavity import Cavity
     from dlmpc_ros.core.symmetry import QUARTER_TURN
     tracker = CurveTracker(grid, angles, threshold=1.0)
     points = np.array([tracker.on_curve(u) for u in CURVE_POINTS])  # (9, 4)
     batch = np.concatenate([points, points + QUARTER_TURN])
-    cavity = Cavity(plant, batch=len(batch), angles=batch, birefringence=np.full(len(batch), k))
-    cavity.run(ROUND_TRIPS)
-    last = cavity.run(1).last()
-    objective = np.where(last.E > 0, last.E / last.M, 0.0).reshape(2, len(CURVE_POINTS))
+    ratio = settled_ratio(plant, envelope, k, batch).reshape(2, len(CURVE_POINTS))
     star = float(np.interp(k, envelope['K'], envelope['O_star']))
     print(f'K {k:+.2f}, O* {star:.4f}; u ' + ' '.join(f'{u:+.2f}' for u in CURVE_POINTS))
-    for name, o in zip(('curve', 'twin '), objective / star):
+    for name, o in zip(('curve', 'twin '), ratio):
         print(f'{name}' + ' ' * 21 + ' '.join(f'{x:5.2f}' for x in o))
     return 0
 
