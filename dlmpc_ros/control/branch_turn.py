@@ -88,6 +88,7 @@ class BranchTurn:
         self.landing = 0.0                   # curve point the turn under way lands at
         self._checked: list[float] = []      # O measured while verifying
         self.lost_landing = False  # the last turn lost the pulse where it landed (till kept)
+        self.arrived = False       # the latest turn reached the other branch
 
     @property
     def busy(self) -> bool:
@@ -122,7 +123,7 @@ class BranchTurn:
                 self._way, self._path, self._issued = way, path, []
                 self._from = np.asarray(current, float)
                 self._before = float(objective)
-                self._phase = TurnPhase.GO
+                self._phase, self.arrived = TurnPhase.GO, False
                 return True
         self.wait = TURN_COOLDOWN
         return False
@@ -165,7 +166,7 @@ class BranchTurn:
         if self._path:
             return command, TurnEvent.NONE
         if self._phase is TurnPhase.GO:
-            self._phase, self._checked = TurnPhase.VERIFY, []
+            self._phase, self._checked, self.arrived = TurnPhase.VERIFY, [], True
             return command, ARRIVED
         event = RETURNED if self._phase is TurnPhase.BACK else ABANDONED
         if event == ABANDONED:

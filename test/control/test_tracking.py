@@ -417,6 +417,22 @@ def test_a_turn_that_loses_the_pulse_is_turned_back_and_tried_the_other_way():
     assert np.mean(o[-100:]) > 0.19                          # on the twin at K = 0.25
 
 
+def test_a_turn_that_loses_the_pulse_on_the_way_is_tried_again_the_other_way():
+    """K steps from -0.15 to 0.25 (O falls on the curve; the estimate, on a flat curve, says
+    nothing); the trial's turn goes the way that loses the pulse and is turned back. It
+    says nothing of the twin, so the branch keeps its best: after the wait the trial
+    fires again, the other way round, and the twin stays."""
+    cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.1, mirror_margin=0.5,
+                         entry_trial_after=NEVER)
+    tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
+    tracker.turner.direction = 1.0                                  # the wrong way here
+    step = lambda t: -0.15 if t < 300 else 0.25                     # noqa: E731
+    o, _, branch = _drive_mirrored(tracker, step, 300 + 3 * branch_turn.TURN_COOLDOWN,
+                                   curvature=0.0)
+    assert tracker.turner.abandoned == 1 and tracker.turner.made == 1
+    assert branch[-1] == -1 and np.mean(o[-50:]) > 0.195    # the twin's 0.2, not 0.175
+
+
 def _scripted_entry(config: TrackingConfig, objectives: list[float],
                     lost_landing: bool = False, wait: int = 0) -> CurveTracker:
     """A tracker entered where a scan locked (curve point -0.1, branch 1), fed the O
