@@ -263,8 +263,7 @@ class CurveTracker:
             self._recent.clear()
         if len(self._recent) < self.config.entry_patience:
             return None
-        self.active = True
-        self._entry_objective = float(np.median(self._recent))
+        self.active, self._entry_objective = True, float(np.median(self._recent))
         self._recentre(self._left_at)
         self._entry_trial = True
         return self.curve(self.estimate + self.dither.sign * self.config.dither)
@@ -324,8 +323,7 @@ class CurveTracker:
         if not turn:
             return False
         self.rotation.move(u, turn)
-        self.planned = float(turn)
-        self._turn_at = u
+        self.planned, self._turn_at = float(turn), u
         self.dither.compared.clear()  # O moves with the turn: compare blocks after it
         return self.planner.undone == undone  # an earlier turn taken back is no gain
 
