@@ -49,12 +49,17 @@ def _sourced(install: Path, command: str) -> list[str]:
     return ['bash', '-c', f'. {shlex.quote(str(install / "setup.bash"))} && {command}']
 
 
-def _until(install: Path, env: dict, command: str, wanted: str, timeout: float = 40.0) -> str:
-    """Run ``command`` until its output holds ``wanted`` (discovery takes a while)."""
+def _until(install: Path, env: dict, command: str, wanted: str, timeout: float = 60.0) -> str:
+    """Run ``command`` until its output holds ``wanted`` (discovery takes a while; on a
+    loaded machine one try may hang past its 30 s, and the next is made)."""
     deadline, out = time.monotonic() + timeout, ''
     while time.monotonic() < deadline:
-        proc = subprocess.run(_sourced(install, command), env=env, capture_output=True,
-                              text=True, timeout=30)
+        try:
+            proc = subprocess.run(_sourced(install, command), env=env, capture_output=True,
+                                  text=True, timeout=30)
+        except subprocess.TimeoutExpired as hung:
+            out = f'(timed out after 30 s) {hung.stdout or ""}{hung.stderr or ""}'
+            continue
         out = proc.stdout + proc.stderr
         if wanted in out:
             return out
