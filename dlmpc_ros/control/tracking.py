@@ -248,9 +248,9 @@ class CurveTracker:
             self._turn_side = 0.0
         if event in (KEPT, RETURNED, ABANDONED):
             self.dither.restart()
-        if event in (KEPT, RETURNED) or (event == ABANDONED and self.turner.arrived):
-            self._branch_best = 0.0  # the branch is chosen anew: its best from here on
-            self._trial_values.clear()  # (a turn lost on the way compared nothing)
+            if event != ABANDONED or self.turner.arrived:  # one lost on the way compared nothing
+                self._branch_best = 0.0  # the branch is chosen anew: its best from here on
+                self._trial_values.clear()
         return self.curve(self.estimate) if command is None else command
 
     def _maybe_enter(self, objective: float, locked: bool) -> np.ndarray | None:

@@ -313,7 +313,6 @@ def test_where_the_estimate_says_nothing_a_fall_of_o_makes_the_tracker_try_the_t
     assert silent.branch == 1 and np.mean(o_silent[-100:]) < 0.185
 
 
-
 def test_a_fall_of_o_while_an_entry_settles_still_makes_the_tracker_try_the_twin():
     """The branch's best counts from the entry: K steps across 0 while the entry settles
     (before the dither compares), O falls on the curve, and the tracker tries the twin."""
@@ -323,6 +322,7 @@ def test_a_fall_of_o_while_an_entry_settles_still_makes_the_tracker_try_the_twin
     o, _, branch = _drive_mirrored(tracker, step, 400, curvature=0.0)
     assert o[cfg.settle] < 0.18                         # fallen on the curve
     assert branch[-1] == -1 and tracker.turner.made >= 1 and np.mean(o[-50:]) > 0.195
+
 
 def test_noise_alone_makes_the_tracker_try_the_twin_less_where_the_trial_averages_blocks(
         monkeypatch):
