@@ -40,10 +40,8 @@ NOT_CONTROL_LAW = {'__init__.py', 'esc.py', 'ga.py', 'bo.py', 'drl.py', 'observa
 #: controller at start, and the callback, the decision and the publishing are its base
 #: class's; nor are the settings (``control/dlmpc_config.py``), which the modules read
 #: but which do nothing.
-PER_PERIOD = ('ros/controller_base.py',
-              'control/period_measurement.py', 'control/dlmpc.py',
-              'control/acquisition.py', 'control/tracking.py', 'control/branch_turn.py',
-              'control/rotation_planner.py', 'control/step.py', 'control/limits.py',
+PER_PERIOD = ('ros/controller_base.py', 'control/step.py', 'control/dlmpc.py',
+              'control/acquisition.py', 'control/tracking.py', 'control/rotation_planner.py',
               'learning/response.py')
 
 
@@ -55,7 +53,7 @@ def settings() -> dict[str, list[str]]:
     """Config class -> its setting names (nested configs left out)."""
     from dlmpc_ros.control.dlmpc_config import (AcquisitionConfig, DLMPCConfig, PlannerConfig,
                                                TrackingConfig)
-    from dlmpc_ros.control.limits import AngleLimits
+    from dlmpc_ros.control.step import AngleLimits
     out = {}
     for kind in (DLMPCConfig, TrackingConfig, AcquisitionConfig, PlannerConfig, AngleLimits):
         nested = {f.name for f in fields(kind) if f.name in ('limits', 'acquisition',

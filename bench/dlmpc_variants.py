@@ -98,7 +98,7 @@ def variant_config(overrides: dict, models_dir: str,
     ``measurement_round_trips``)."""
     from dlmpc_ros.control.dlmpc_config import (AcquisitionConfig, DLMPCConfig, PlannerConfig,
                                                TrackingConfig)
-    from dlmpc_ros.control.limits import AngleLimits
+    from dlmpc_ros.control.step import AngleLimits
 
     overrides = dict(overrides)
     run = {key: overrides.pop(key) for key in ('measurement_noise', 'measurement_round_trips')

@@ -49,7 +49,7 @@ class OracleRun:
 def run_one(job: OracleRun) -> dict:
     """One closed-loop run of the plant's oracle, with its metrics."""
     from dlmpc_ros.control.baselines import OracleController
-    from dlmpc_ros.control.limits import AngleLimits
+    from dlmpc_ros.control.step import AngleLimits
     from dlmpc_ros.evaluation.metrics import run_metrics
     from dlmpc_ros.evaluation.runs import RunSpec, run_fast
     from dlmpc_ros.evaluation.suites import stress_conditions

@@ -324,7 +324,7 @@ def lock_starts(build: Callable, spec, envelope: dict) -> list[dict]:
     """``spec``'s cold starts (held K) run as
     :func:`dlmpc_ros.evaluation.lock_benchmark.run_starts` runs them, with a controller
     from ``build(limits)`` per start; the same per-start dicts."""
-    from dlmpc_ros.control.limits import AngleLimits
+    from dlmpc_ros.control.step import AngleLimits
     from dlmpc_ros.evaluation.lock_benchmark import run_start
     if spec.drift != 'held':
         raise ValueError('the tuning runs the held-K lock benchmark only')
@@ -342,7 +342,7 @@ def lock_score(starts: list[dict], budget: int) -> float:
 def drift_ratio(method: str, build: Callable, plant: Plant, scenario: str, seed: int,
                 round_trips: int, models_dir: Path) -> float:
     """Mean O / O* of one fast drift run (``dlmpc-evaluate --fast``'s run)."""
-    from dlmpc_ros.control.limits import AngleLimits
+    from dlmpc_ros.control.step import AngleLimits
     from dlmpc_ros.evaluation.metrics import run_metrics
     from dlmpc_ros.evaluation.runs import RunSpec, run_fast
     spec = RunSpec(scenario, seed, method, round_trips=round_trips, plant=plant.parameters)

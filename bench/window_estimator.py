@@ -45,7 +45,7 @@ def closed_loop_run(job: tuple[int, str]) -> dict:
     estimate and the mode (plant seed 0: the nominal cavity)."""
     from dlmpc_ros.control.dlmpc_config import DLMPCConfig
     from dlmpc_ros.control.factory import load_dlmpc
-    from dlmpc_ros.control.limits import AngleLimits
+    from dlmpc_ros.control.step import AngleLimits
     from dlmpc_ros.control.step import MODES
     from dlmpc_ros.evaluation.runs import RunSpec, run_fast
     from dlmpc_ros.training.envelope import PlantTask, draw_task

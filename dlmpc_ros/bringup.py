@@ -39,7 +39,7 @@ import numpy as np
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.control.factory import CONTROLLERS
 from dlmpc_ros.control.plugins import ControllerSpecError, build
-from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
+from dlmpc_ros.control.step import MEASUREMENT_ROUND_TRIPS
 from dlmpc_ros.core.bench import BENCH_FIELDS, BENCH_PRESETS, parse_bench
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.drift import SCENARIOS, make_scenario, parse_settings

@@ -16,8 +16,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from dlmpc_ros import interfaces as itf
-from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.period_measurement import SETTLE_TIMEOUT, SETTLE_TOLERANCE
+from dlmpc_ros.control.step import SETTLE_TIMEOUT, SETTLE_TOLERANCE, AngleLimits
 
 PASS, WARN, FAIL, SKIP = 'PASS', 'WARN', 'FAIL', 'SKIP'
 STATE_LABEL = ','.join(itf.STATE_FIELDS)

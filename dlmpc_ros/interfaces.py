@@ -97,7 +97,7 @@ def vector_fault(data: Sequence[float], fields: Sequence[str], limit: float) -> 
 
 def measured_state(data: Sequence[float]) -> list[float]:
     """``(E, M, alpha[4])`` of a /laser/state vector: the state a period's measurement
-    averages (:class:`~dlmpc_ros.control.period_measurement.PeriodMeasurement`)."""
+    averages (:class:`~dlmpc_ros.control.step.PeriodMeasurement`)."""
     return [float(data[i]) for i in MEASURED_COLUMNS]
 
 

@@ -50,9 +50,8 @@ import numpy as np
 
 from dlmpc_ros.control.factory import CONTROLLERS
 from dlmpc_ros.control.plugins import ControllerSpecError, build, label
-from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.period_measurement import (MEASUREMENT_ROUND_TRIPS, SETTLE_TIMEOUT,
-                                                  SETTLE_TOLERANCE)
+from dlmpc_ros.control.step import (MEASUREMENT_ROUND_TRIPS, SETTLE_TIMEOUT, SETTLE_TOLERANCE,
+                                    AngleLimits)
 from dlmpc_ros.core.bench import BENCH_FIELDS, BENCH_PRESETS, parse_bench
 from dlmpc_ros.core.drift import DEFAULTS, parse_settings
 from dlmpc_ros.evaluation.figures import plot_surrogate, plot_tracking

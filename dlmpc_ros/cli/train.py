@@ -30,7 +30,7 @@ import sys
 import time
 from pathlib import Path
 
-from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
+from dlmpc_ros.control.step import MEASUREMENT_ROUND_TRIPS
 from dlmpc_ros.learning.model_files import ModelFileError
 from dlmpc_ros.scaleout import default_workers
 from dlmpc_ros.training.workspace import Workspace

@@ -21,7 +21,7 @@ from typing import Protocol
 import numpy as np
 
 from dlmpc_ros.control.dlmpc_config import AcquisitionConfig
-from dlmpc_ros.control.limits import AngleLimits, into_range
+from dlmpc_ros.control.step import AngleLimits, into_range
 from dlmpc_ros.core.angles import wrap_angles
 from dlmpc_ros.core.symmetry import HALF_WAVE, QUARTER_TURN
 

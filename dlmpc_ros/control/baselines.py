@@ -16,8 +16,7 @@ import time
 
 import numpy as np
 
-from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.step import ControlStep
+from dlmpc_ros.control.step import AngleLimits, ControlStep
 
 
 class _HoldAngles:

@@ -40,8 +40,7 @@ from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
 from threadpoolctl import ThreadpoolController
 
-from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.step import ControlStep, implausible
+from dlmpc_ros.control.step import AngleLimits, ControlStep, implausible
 from dlmpc_ros.core import checks
 from dlmpc_ros.core.angles import wrap_angles
 

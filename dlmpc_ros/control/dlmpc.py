@@ -1,7 +1,7 @@
 """The DL-MPC controller (paper section 3D): a supervisor over its modes.
 
 Each control period it takes the period's measurement ``(E, M, alpha[4])``
-(:mod:`~dlmpc_ros.control.period_measurement`), asks its modes in priority order (each
+(:mod:`~dlmpc_ros.control.step`), asks its modes in priority order (each
 with one verb: ``decide(period)`` returns a :class:`Decision` or None to pass; the modes
 after the one that decides ``stand_down``), and the first that decides sets the next
 angles (within the servo limits):

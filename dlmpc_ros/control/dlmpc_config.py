@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import AngleLimits
 from dlmpc_ros.core.checks import in_range, setting
 
 #: Factors on the estimate's step while the dither's comparisons agree in sign, and when

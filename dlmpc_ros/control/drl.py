@@ -16,9 +16,8 @@ import time
 
 import numpy as np
 
-from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import AngleLimits, ControlStep, implausible
 from dlmpc_ros.control.observation import MeasurementWindow, delta_commands
-from dlmpc_ros.control.step import ControlStep, implausible
 from dlmpc_ros.learning.policy import LearnedPolicy
 
 

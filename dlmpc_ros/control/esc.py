@@ -33,8 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.step import ControlStep, implausible
+from dlmpc_ros.control.step import AngleLimits, ControlStep, implausible
 from dlmpc_ros.core.angles import wrap_angles
 
 #: Objective transforms understood by :class:`ESCConfig`.

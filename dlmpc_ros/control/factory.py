@@ -26,9 +26,8 @@ from dlmpc_ros.control.baselines import FixedBestController, OracleController, P
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.esc import ESCController
 from dlmpc_ros.control.ga import GAConfig, GAController
-from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import AngleLimits, Controller
 from dlmpc_ros.control.plugins import build
-from dlmpc_ros.control.step import Controller
 from dlmpc_ros.learning.tables import load_baselines
 
 if TYPE_CHECKING:  # torch-based (and scikit-learn-based): imported where they are built

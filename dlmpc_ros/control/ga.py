@@ -22,8 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.step import ControlStep, implausible
+from dlmpc_ros.control.step import AngleLimits, ControlStep, implausible
 from dlmpc_ros.core import checks
 from dlmpc_ros.core.angles import wrap_angles
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import AngleLimits
 
 #: Columns of a measurement: E, M and the four angles [rad].
 MEASUREMENT = ('E', 'M', 'alpha1', 'alpha2', 'alpha3', 'alpha_p')

@@ -18,8 +18,7 @@ import torch
 
 from dlmpc_ros.control.acquisition import ScanPoint
 from dlmpc_ros.control.dlmpc_config import ERROR_MEMORY, DLMPCConfig
-from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.step import Decision, Mode, Period
+from dlmpc_ros.control.step import AngleLimits, Decision, Mode, Period
 from dlmpc_ros.learning.features import features
 from dlmpc_ros.learning.mprnn import MPRNN
 

@@ -19,8 +19,7 @@ from collections.abc import Callable
 from importlib import metadata
 from pathlib import Path
 
-from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.step import Controller
+from dlmpc_ros.control.step import AngleLimits, Controller
 
 #: The entry-point group under which packages register controller factories by name.
 GROUP = 'dlmpc_ros.controllers'

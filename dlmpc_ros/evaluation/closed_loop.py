@@ -4,7 +4,7 @@ stepped in the same order as the node graph in lockstep.
 Round trip r runs with K = scenario(r) and the angles the bench's servos have reached by
 then (with ideal servos: the angles commanded after round trip r - 1). At every round
 trip r at which a decision is due (at least a period after the last one, once the
-readings are settled at its command: :mod:`dlmpc_ros.control.period_measurement`) the
+readings are settled at its command: :mod:`dlmpc_ros.control.step`) the
 measurement ``(E, M, alpha[4])`` goes to the estimator and the controller, whose command
 goes to the servos from r + 1.
 :func:`replay_decisions` feeds a recorded run's measurements to a controller again.
@@ -19,9 +19,8 @@ from dataclasses import replace
 import numpy as np
 
 from dlmpc_ros.learning.estimator import SurrogateEstimator
-from dlmpc_ros.control.period_measurement import (MEASUREMENT_ROUND_TRIPS, SETTLE_TIMEOUT,
-                                                  SETTLE_TOLERANCE, PeriodMeasurement)
-from dlmpc_ros.control.step import Controller, ControlStep
+from dlmpc_ros.control.step import (MEASUREMENT_ROUND_TRIPS, SETTLE_TIMEOUT, SETTLE_TOLERANCE,
+                                    ControlStep, Controller, PeriodMeasurement)
 from dlmpc_ros.core.bench import Bench, BenchConfig
 from dlmpc_ros.core.cavity import Cavity
 from dlmpc_ros.core.config import CavityConfig
@@ -60,7 +59,7 @@ def run_closed_loop(controller: Controller, scenario: Scenario, round_trips: int
     ``initial`` is the laser's initial field (the spec's ``'sech'`` pulse, or ``'noise'``,
     seeded by ``initial_seed``: a cold start from spontaneous emission).
     ``measurement_round_trips``, ``settle_tolerance`` and ``settle_timeout`` form each
-    decision's measurement (:class:`~dlmpc_ros.control.period_measurement.PeriodMeasurement`:
+    decision's measurement (:class:`~dlmpc_ros.control.step.PeriodMeasurement`:
     the mean E and M of the latest settled round trips; ``period`` is the least time
     between decisions).
     """

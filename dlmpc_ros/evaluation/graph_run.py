@@ -9,8 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
-from dlmpc_ros.control.step import MODES
+from dlmpc_ros.control.step import MEASUREMENT_ROUND_TRIPS, MODES
 from dlmpc_ros.evaluation.record import RunRecord
 from dlmpc_ros.recording.run_csv import read_decisions_csv, read_run_csv
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
 from dlmpc_ros.control.factory import load_estimator, make_controller
-from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import AngleLimits
 from dlmpc_ros.core import checks
 from dlmpc_ros.core.bench import BenchConfig
 from dlmpc_ros.core.config import CavityConfig

@@ -9,10 +9,8 @@ from pathlib import Path
 
 from dlmpc_ros.learning.estimator import SurrogateEstimator
 from dlmpc_ros.control.factory import load_estimator, make_controller
-from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.period_measurement import (MEASUREMENT_ROUND_TRIPS, SETTLE_TIMEOUT,
-                                                  SETTLE_TOLERANCE)
-from dlmpc_ros.control.step import Controller
+from dlmpc_ros.control.step import (MEASUREMENT_ROUND_TRIPS, SETTLE_TIMEOUT, SETTLE_TOLERANCE,
+                                    AngleLimits, Controller)
 from dlmpc_ros.core import checks
 from dlmpc_ros.core.bench import BenchConfig
 from dlmpc_ros.core.config import CavityConfig

@@ -6,8 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.step import ControlStep, implausible
+from dlmpc_ros.control.step import AngleLimits, ControlStep, implausible
 
 
 class HillClimber:

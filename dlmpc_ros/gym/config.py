@@ -15,8 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS, SETTLE_TOLERANCE
+from dlmpc_ros.control.step import MEASUREMENT_ROUND_TRIPS, SETTLE_TOLERANCE, AngleLimits
 from dlmpc_ros.core.bench import BENCH_PRESETS, BenchConfig, parse_bench
 from dlmpc_ros.core.cavity import INITIAL_CONDITIONS
 from dlmpc_ros.core.config import BIREFRINGENCE_RANGE, CavityConfig

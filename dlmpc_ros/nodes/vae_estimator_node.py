@@ -2,7 +2,7 @@
 
 Subscribes ``/controller/measurement``, the measurement ``(E, M, alpha[4])`` each of the
 controller's decisions is made on (E and M averaged over its settled round trips, with
-their angles: :mod:`dlmpc_ros.control.period_measurement`), feeds it to the VAE encoder and
+their angles: :mod:`dlmpc_ros.control.step`), feeds it to the VAE encoder and
 publishes ``/estimator/birefringence`` ``[r, surrogate, latency_ms, latent mean...]`` for
 the same round trip r. The surrogate is a coordinate of the latent space that tracks K,
 not K in K's units.

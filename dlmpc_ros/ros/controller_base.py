@@ -4,7 +4,7 @@
 A decision is due at least ``period`` round trips after the last one, once the reported
 angles have been within ``settle_tolerance`` of the last command for the round trips a
 measurement averages, or ``settle_timeout`` round trips after the last decision whatever
-they are (:class:`~dlmpc_ros.control.period_measurement.PeriodMeasurement`): its
+they are (:class:`~dlmpc_ros.control.step.PeriodMeasurement`): its
 measurement, the mean E and M of the last ``measurement_round_trips`` settled states with
 their angles, is published on /controller/measurement (what the estimator reads). A node
 that uses the estimator acts once the estimate of the same round trip arrives, or after

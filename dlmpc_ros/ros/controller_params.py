@@ -4,9 +4,8 @@ servo limits and the period's measurement."""
 
 from __future__ import annotations
 
-from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.period_measurement import (MEASUREMENT_ROUND_TRIPS, SETTLE_TIMEOUT,
-                                                  SETTLE_TOLERANCE, PeriodMeasurement)
+from dlmpc_ros.control.step import (MEASUREMENT_ROUND_TRIPS, SETTLE_TIMEOUT, SETTLE_TOLERANCE,
+                                    AngleLimits, PeriodMeasurement)
 from dlmpc_ros.ros import params
 
 COMMON_DEFAULTS: dict[str, object] = {

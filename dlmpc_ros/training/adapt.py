@@ -53,7 +53,7 @@ import numpy as np
 import torch
 
 from dlmpc_ros import interfaces as itf
-from dlmpc_ros.control.period_measurement import MEASUREMENT_ROUND_TRIPS
+from dlmpc_ros.control.step import MEASUREMENT_ROUND_TRIPS
 from dlmpc_ros.control.rotation_planner import OnlineCorrection
 from dlmpc_ros.control.tracking import ROTATION_KNOTS
 from dlmpc_ros.core import checks

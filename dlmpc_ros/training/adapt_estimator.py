@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from dlmpc_ros import interfaces as itf
-from dlmpc_ros.control.period_measurement import PeriodMeasurement
+from dlmpc_ros.control.step import PeriodMeasurement
 from dlmpc_ros.core import checks
 from dlmpc_ros.core.fingerprint import fingerprint_arrays
 from dlmpc_ros.learning.checkpoint import save_checkpoint

@@ -74,7 +74,7 @@ def closed_loop_run(job: RunJob) -> dict[str, np.ndarray]:
     ``angles`` (n, 4), where the laser measured a finite, positive E."""
     from dlmpc_ros.control.dlmpc_config import DLMPCConfig, PlannerConfig
     from dlmpc_ros.control.factory import load_dlmpc
-    from dlmpc_ros.control.limits import AngleLimits
+    from dlmpc_ros.control.step import AngleLimits
     from dlmpc_ros.evaluation.runs import RunSpec, run_fast
     from dlmpc_ros.training.envelope import PlantTask, draw_task
     models = Path(job.models_dir)

@@ -25,7 +25,7 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
-from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import AngleLimits
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.plants import PlantFamily
 from dlmpc_ros.gym.vector import ModeLockedLaserVectorEnv

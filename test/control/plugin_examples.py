@@ -7,8 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.step import ControlStep
+from dlmpc_ros.control.step import AngleLimits, ControlStep
 
 
 class Holder:

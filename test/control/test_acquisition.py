@@ -8,7 +8,7 @@ from dlmpc_ros.control.acquisition import (CURVE_POINTS, TRAVEL_PERIODS, WEAK_FI
                                           LockSupervisor, ScanPoint)
 from dlmpc_ros.control.dlmpc import DLMPCController
 from dlmpc_ros.control.dlmpc_config import AcquisitionConfig, DLMPCConfig
-from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import AngleLimits
 from dlmpc_ros.control.paper_loops import MapScan, scan_surrogates
 from dlmpc_ros.learning.kmap import KMap, KMapConfig
 from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig

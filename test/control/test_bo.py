@@ -7,8 +7,7 @@ import pytest
 
 from dlmpc_ros.control.bo import BOConfig, BOController, features
 from dlmpc_ros.control.factory import make_controller
-from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.step import MODES
+from dlmpc_ros.control.step import MODES, AngleLimits
 from dlmpc_ros.paths import models_dir
 
 OPTIMUM = np.array([0.4, -1.0, 1.2, -0.3])

@@ -4,8 +4,7 @@ import numpy as np
 import pytest
 
 from dlmpc_ros.control.esc import ESCConfig, ESCController
-from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.step import MODES
+from dlmpc_ros.control.step import MODES, AngleLimits
 
 OPTIMUM = np.array([0.3, -0.2, 0.5, 0.1])
 CURVATURE = np.array([0.6, 0.4, 0.1, 0.3])  # objective units per rad^2

@@ -14,7 +14,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from dlmpc_ros.control.factory import CONTROLLERS, make_baseline, make_controller
-from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import AngleLimits
 from dlmpc_ros.paths import models_dir
 from test.strategies import finite_float
 

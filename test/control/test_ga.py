@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from dlmpc_ros.control.ga import GAConfig, GAController
-from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import AngleLimits
 
 OPTIMUM = np.array([0.4, -0.3, 0.2, -0.6])
 

@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import AngleLimits
 
 
 def test_step_is_limited_and_goal_is_the_nearest_equivalent():

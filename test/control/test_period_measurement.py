@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from dlmpc_ros.control.period_measurement import PeriodMeasurement, period_measurement
+from dlmpc_ros.control.step import PeriodMeasurement, period_measurement
 
 ANGLES = [0.1, -0.2, 0.3, 0.4]
 OTHER = [0.2, -0.2, 0.3, 0.4]

@@ -9,9 +9,8 @@ import numpy as np
 import pytest
 
 from dlmpc_ros.control.factory import CONTROLLERS
-from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import MODES, AngleLimits
 from dlmpc_ros.control.plugins import ControllerSpecError, build, label, registered
-from dlmpc_ros.control.step import MODES
 from dlmpc_ros.evaluation.runs import RunSpec, run_fast
 from dlmpc_ros.examples.hill_climber import HillClimber
 from dlmpc_ros.paths import models_dir

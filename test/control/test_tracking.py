@@ -6,13 +6,12 @@ import numpy as np
 import pytest
 import torch
 
-from dlmpc_ros.control import branch_turn
-from dlmpc_ros.control.branch_turn import TURN_PERIODS, TurnEvent
 from dlmpc_ros.control.dlmpc import DLMPCController
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig, TrackingConfig
-from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import AngleLimits
 from dlmpc_ros.control import tracking
-from dlmpc_ros.control.tracking import COOLDOWN, TRACKER_TRANSITIONS, CurveTracker, TrackerState
+from dlmpc_ros.control.tracking import (COOLDOWN, TRACKER_TRANSITIONS, TURN_PERIODS, CurveTracker,
+                                       TrackerState, TurnEvent)
 from dlmpc_ros.core.symmetry import QUARTER_TURN
 from dlmpc_ros.learning.kmap import KMap, KMapConfig
 from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
@@ -427,7 +426,7 @@ def test_a_turn_that_loses_the_pulse_on_the_way_is_tried_again_the_other_way():
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
     tracker.turner.direction = 1.0                                  # the wrong way here
     step = lambda t: -0.15 if t < 300 else 0.25                     # noqa: E731
-    o, _, branch = _drive_mirrored(tracker, step, 300 + 3 * branch_turn.TURN_COOLDOWN,
+    o, _, branch = _drive_mirrored(tracker, step, 300 + 3 * tracking.TURN_COOLDOWN,
                                    curvature=0.0)
     assert tracker.turner.abandoned == 1 and tracker.turner.made == 1
     assert branch[-1] == -1 and np.mean(o[-50:]) > 0.195    # the twin's 0.2, not 0.175
@@ -634,7 +633,7 @@ def test_a_turn_to_a_weaker_branch_stays_where_a_turn_of_the_curve_is_predicted_
         turner = tracker.turner
         assert turner.begin(ANGLES[20], GRID[20], 0.2)
         [turner.step(0.2) for _ in range(TURN_PERIODS)]
-        events = [turner.step(0.18)[1] for _ in range(branch_turn.VERIFY)]
+        events = [turner.step(0.18)[1] for _ in range(tracking.VERIFY)]
         assert events[-1] is (TurnEvent.KEPT if kept else TurnEvent.NONE)
         assert turner.busy != kept and tracker.planned == (0.05 if kept else 0.0)
         assert planner.asked == [pytest.approx(np.log(1.005 * 0.2 / 0.18))]
@@ -657,7 +656,7 @@ def test_a_turn_asked_for_because_o_fell_is_judged_against_the_o_it_fell_to():
             if tracker.turner.busy:
                 break
         assert t == 9 * cfg.block - 1  # begun in the period of the fall
-        script = [0.11] * (TURN_PERIODS - 1) + [landed] * branch_turn.VERIFY + [0.10] * 10
+        script = [0.11] * (TURN_PERIODS - 1) + [landed] * tracking.VERIFY + [0.10] * 10
         for o in script:
             current = tracker.limits.apply(current, tracker.step(o, current))
         assert (tracker.branch, tracker.turner.made, tracker.turner.rejected) == \

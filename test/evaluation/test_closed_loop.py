@@ -3,7 +3,7 @@
 import numpy as np
 
 from dlmpc_ros.control.baselines import FixedBestController, OracleController
-from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import AngleLimits
 from dlmpc_ros.core.config import CavityConfig
 from dlmpc_ros.core.drift import make_scenario
 from dlmpc_ros.evaluation.closed_loop import random_initial_angles, run_closed_loop

@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 
 from dlmpc_ros.control.factory import load_estimator, make_controller
-from dlmpc_ros.control.limits import AngleLimits
-from dlmpc_ros.control.step import MODES
+from dlmpc_ros.control.step import MODES, AngleLimits
 from dlmpc_ros.core import drift
 from dlmpc_ros.core.cavity import Cavity
 from dlmpc_ros.core.plants import PlantFamily, plant_parameters

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from dlmpc_ros import interfaces as itf
-from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import AngleLimits
 from dlmpc_ros.core.drift import make_scenario
 from test.nodes.rosutil import NodeProcess, Probe
 

@@ -11,7 +11,7 @@ import pytest
 
 from dlmpc_ros.cli.train import main as train_main
 from dlmpc_ros.control.drl import DRLController
-from dlmpc_ros.control.limits import AngleLimits
+from dlmpc_ros.control.step import AngleLimits
 from dlmpc_ros.control.plugins import ControllerSpecError, build
 from dlmpc_ros.learning.model_files import ModelFileError
 from dlmpc_ros.learning.policy import FILE_NAME, SPEC_NAME, load_policy, save_policy
