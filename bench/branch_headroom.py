@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def profile(plant, envelope: dict, k: float, grid: np.ndarray, angles: np.ndarray) -> int:
     """Print the settled O / O*(K) at the scan's points on the curve and its twin."""
-    from dlmpc_ros.control.acquisition import CURVE_POINTS
+    from dlmpc_ros.control.dlmpc import CURVE_POINTS
     from dlmpc_ros.control.tracking import CurveTracker
     from dlmpc_ros.core.symmetry import QUARTER_TURN
     tracker = CurveTracker(grid, angles, threshold=1.0)

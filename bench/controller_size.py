@@ -41,7 +41,7 @@ NOT_CONTROL_LAW = {'__init__.py', 'esc.py', 'ga.py', 'bo.py', 'drl.py', 'observa
 #: class's; nor are the settings (``control/dlmpc_config.py``), which the modules read
 #: but which do nothing.
 PER_PERIOD = ('ros/controller_base.py', 'control/step.py', 'control/dlmpc.py',
-              'control/acquisition.py', 'control/tracking.py', 'control/rotation_planner.py',
+              'control/tracking.py', 'control/rotation_planner.py',
               'learning/response.py')
 
 

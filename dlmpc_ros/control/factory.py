@@ -34,6 +34,7 @@ if TYPE_CHECKING:  # torch-based (and scikit-learn-based): imported where they a
     from dlmpc_ros.control.bo import BOController
     from dlmpc_ros.control.dlmpc import DLMPCController
     from dlmpc_ros.control.drl import DRLController
+    from dlmpc_ros.control.paper_loops import PaperDLMPC
     from dlmpc_ros.learning.estimator import SurrogateEstimator
 
 CONTROLLERS = ('dlmpc', 'esc', 'ga', 'passive', 'fixed_best', 'oracle', 'bo', 'drl')
@@ -47,19 +48,15 @@ def load_estimator(models_dir: Path) -> SurrogateEstimator:
     return SurrogateEstimator(load_encoder(Path(models_dir)))
 
 
-def load_dlmpc(models_dir: Path, config: DLMPCConfig | None = None) -> DLMPCController:
-    """The DL-MPC controller from ``models_dir/{kmap,mprnn}.pt`` and, unless tracking is
-    off, ``models_dir/track_curve.npz``, ``models_dir/rotation_prior.npz`` and
-    ``models_dir/turn_correction.npz`` if a calibration left them, and (unless the
-    planner is off too) ``models_dir/response.pt`` (no file holds the true K of a run or a
-    plant's parameters)."""
-    from dlmpc_ros.control.dlmpc import DLMPCController
+def load_dlmpc(models_dir: Path, config: DLMPCConfig | None = None
+               ) -> DLMPCController | PaperDLMPC:
+    """The DL-MPC controller from ``models_dir``: with tracking settings (and a lock level in
+    ``kmap.pt``'s metrics), the default strategy from ``track_curve.npz``,
+    ``rotation_prior.npz`` and ``turn_correction.npz`` if a calibration left them, and
+    (unless the planner is off) ``response.pt``; without, the paper's loops from ``kmap.pt``
+    and ``mprnn.pt`` (no file holds the true K of a run or a plant's parameters)."""
     from dlmpc_ros.learning.checkpoint import ModelFileError, regenerate_hint
-    from dlmpc_ros.learning.curve import FILE_NAME, load_curve
     from dlmpc_ros.learning.kmap import load_kmap
-    from dlmpc_ros.learning.mprnn import load_mprnn
-    from dlmpc_ros.learning.rotation_prior import load_rotation_prior
-    from dlmpc_ros.learning.turn_correction import load_turn_correction
     config = config or DLMPCConfig()
     kmap, payload = load_kmap(Path(models_dir) / 'kmap.pt')
     metrics = payload.get('metrics')
@@ -70,26 +67,29 @@ def load_dlmpc(models_dir: Path, config: DLMPCConfig | None = None) -> DLMPCCont
         raise ModelFileError(f'model file {Path(models_dir) / "kmap.pt"} has malformed metrics '
                              f'(subset_mean_O must be a positive number); '
                              f'{regenerate_hint("kmap")}')
-    curve = None
-    if config.tracking is not None:
-        try:
-            curve = load_curve(Path(models_dir) / FILE_NAME)
-        except (FileNotFoundError, ValueError) as err:
-            raise ModelFileError(f'{err} (or turn curve tracking off)') from None
-    response = prior = correction = None
-    if config.tracking is not None:
-        try:
-            prior = load_rotation_prior(Path(models_dir))
-            correction = load_turn_correction(Path(models_dir))
-        except ValueError as err:
-            raise ModelFileError(str(err)) from None
-        if config.planner is not None:
-            from dlmpc_ros.learning.response import load_response
-            response, _ = load_response(Path(models_dir) / 'response.pt')
-    return DLMPCController(kmap, load_mprnn(Path(models_dir) / 'mprnn.pt', kmap), config,
-                           target_objective=float(target) if target else None, curve=curve,
-                           response=response, rotation_prior=prior,
-                           turn_correction=correction)
+    if config.tracking is None or not target:
+        from dlmpc_ros.control.paper_loops import PaperDLMPC
+        from dlmpc_ros.learning.mprnn import load_mprnn
+        return PaperDLMPC(kmap, load_mprnn(Path(models_dir) / 'mprnn.pt', kmap), config,
+                          target_objective=float(target) if target else None)
+    from dlmpc_ros.control.dlmpc import DLMPCController
+    from dlmpc_ros.learning.curve import FILE_NAME, load_curve
+    from dlmpc_ros.learning.rotation_prior import load_rotation_prior
+    from dlmpc_ros.learning.turn_correction import load_turn_correction
+    try:
+        curve = load_curve(Path(models_dir) / FILE_NAME)
+    except (FileNotFoundError, ValueError) as err:
+        raise ModelFileError(f'{err} (or turn curve tracking off)') from None
+    try:
+        prior = load_rotation_prior(Path(models_dir))
+        correction = load_turn_correction(Path(models_dir))
+    except ValueError as err:
+        raise ModelFileError(str(err)) from None
+    response = None
+    if config.planner is not None:
+        from dlmpc_ros.learning.response import load_response
+        response, _ = load_response(Path(models_dir) / 'response.pt')
+    return DLMPCController(config, float(target), curve, response, prior, correction)
 
 
 def oracle_table(baselines: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -105,13 +105,13 @@ def passive_angles(baselines: dict[str, np.ndarray], initial_k: float) -> np.nda
 
 
 def dlmpc(models_dir: Path, limits: AngleLimits, *,
-          dlmpc_config: DLMPCConfig | None = None) -> DLMPCController:
+          dlmpc_config: DLMPCConfig | None = None) -> DLMPCController | PaperDLMPC:
     """The DL-MPC (:func:`load_dlmpc`) with ``dlmpc_config`` (default: the shipped
     settings) within ``limits``."""
     return load_dlmpc(models_dir, replace(dlmpc_config or DLMPCConfig(), limits=limits))
 
 
-def dlmpc_paper(models_dir: Path, limits: AngleLimits) -> DLMPCController:
+def dlmpc_paper(models_dir: Path, limits: AngleLimits) -> PaperDLMPC:
     """The paper's DL-MPC alone (section 3D: VAE + map inner loop, MP-RNN outer loop; no
     lock scan, curve tracking or planned turns) within ``limits``: the mpc_controller
     node's ``strategy:=paper``."""

@@ -1,8 +1,9 @@
-"""The paper's DL-MPC loops (section 3D; ``strategy:=paper``, or no tracking curve): the
-MP-RNN outer loop (:class:`OuterLoop`, receding-horizon plans by :func:`solve_plan` while
-the :class:`PredictionMonitor` finds its forecasts accurate), the inner loop
-(:class:`InnerLoop`, the VAE's surrogate through the K-to-angles map) and the scan's points
-without a curve (:class:`MapScan`). The default strategy runs none of them
+"""The paper's DL-MPC (section 3D; ``strategy:=paper``, or no tracking curve):
+:class:`PaperDLMPC`, the DL-MPC's supervisor (:mod:`~dlmpc_ros.control.dlmpc`) over the MP-RNN
+outer loop (:class:`OuterLoop`, receding-horizon plans by :func:`solve_plan` while the
+:class:`PredictionMonitor` finds its forecasts accurate), the inner loop (:class:`InnerLoop`,
+the VAE's surrogate through the K-to-angles map) and hold, after the lock scan over the map's
+angles (:class:`MapScan`). The default strategy runs none of them
 (``bench/results/stress_ablation.md``, ``bench/results/inner_loop_hold.md``).
 """
 
@@ -16,10 +17,11 @@ from statistics import NormalDist
 import numpy as np
 import torch
 
-from dlmpc_ros.control.acquisition import ScanPoint
-from dlmpc_ros.control.dlmpc_config import ERROR_MEMORY, DLMPCConfig
+from dlmpc_ros.control.dlmpc import AcquireMode, HoldMode, LockSupervisor, ScanPoint, Supervisor
+from dlmpc_ros.control.dlmpc_config import ERROR_MEMORY, AcquisitionConfig, DLMPCConfig
 from dlmpc_ros.control.step import AngleLimits, Decision, Mode, Period
 from dlmpc_ros.learning.features import features
+from dlmpc_ros.learning.kmap import KMap
 from dlmpc_ros.learning.mprnn import MPRNN
 
 #: Surrogate values the map scan visits (equal-probability quantiles of the VAE prior).
@@ -179,3 +181,53 @@ class MapScan:
     def note_locked(self, surrogate: float) -> None:
         if np.isfinite(surrogate):
             self.last_surrogate = float(surrogate)
+
+
+class PaperDLMPC(Supervisor):
+    """The paper's DL-MPC: acquire (over the map's angles), outer, inner, hold. ``kmap`` and
+    ``mprnn``: the K-to-angles map and the MP-RNN; ``target_objective``: the mean O of the
+    map's training targets (the lock threshold: ``acquisition.lock_fraction`` x it; None: no
+    scan)."""
+
+    uses_estimator = True
+
+    def __init__(self, kmap: KMap, mprnn: MPRNN, config: DLMPCConfig | None = None,
+                 target_objective: float | None = None) -> None:
+        config = config or DLMPCConfig()
+        self.kmap, self.model, self.target_objective = kmap, mprnn, target_objective
+        self.model.kmap = kmap
+        self.model.eval()
+        for p in self.model.parameters():
+            p.requires_grad_(False)
+        lock_fraction = (config.acquisition or AcquisitionConfig()).lock_fraction
+        self.acquisition: LockSupervisor | None = None
+        if target_objective is not None and config.acquisition is not None:
+            self.acquisition = LockSupervisor(lock_fraction * target_objective,
+                                              MapScan(self.map_angles, SCAN_POINTS),
+                                              config.acquisition, config.limits)
+        self.monitor = PredictionMonitor(mprnn, config)
+        self.outer = OuterLoop(self.monitor, config)
+        acquire = [] if self.acquisition is None else [AcquireMode(self.acquisition)]
+        super().__init__(config, [*acquire, self.outer, InnerLoop(self.map_angles), HoldMode()])
+
+    def fresh(self) -> PaperDLMPC:
+        """A controller with the same models and settings and no history."""
+        return PaperDLMPC(self.kmap, self.model, self.config, self.target_objective)
+
+    def map_angles(self, surrogate: float) -> np.ndarray:
+        """The map's angles (4,) [rad] for a surrogate value."""
+        with torch.no_grad():
+            return self.kmap(torch.tensor([[surrogate]], dtype=torch.float32))[0].numpy()
+
+    def warm_up(self) -> None:
+        """One forward and backward pass on zeros (no state touched): the first plan then does
+        not pay torch's start-up cost mid-run."""
+        history = torch.zeros(1, self.model.min_history(), 10)  # (1, N + 2b, features)
+        plan = torch.zeros(1, self.model.config.horizon, 4, requires_grad=True)
+        self.model(history, plan).objective.sum().backward()
+
+    def observe(self, measurement: np.ndarray) -> float:
+        return self.monitor.observe(measurement)
+
+    def decided(self, decision: Decision) -> None:
+        self.monitor.expect(decision.predicted_next)

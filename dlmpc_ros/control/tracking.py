@@ -21,7 +21,6 @@ from enum import Enum
 
 import numpy as np
 
-from dlmpc_ros.control.acquisition import ScanPoint
 from dlmpc_ros.control.dlmpc_config import (MAX_STEP, MIN_STEP, RPROP_GROW, RPROP_SHRINK,
                                            TrackingConfig)
 from dlmpc_ros.control.step import AngleLimits
@@ -560,26 +559,3 @@ class BranchTurn:
             self.rejected += 1
         self._phase, self.wait = TurnPhase.IDLE, TURN_COOLDOWN
         return command, event
-
-
-class CurveScan:
-    """The acquisition scan over the tracking curve (a
-    :class:`~dlmpc_ros.control.acquisition.ScanSource`): for each parameter ``u`` of
-    ``points``, the curve's point and its mirror twin (estimate ``-u``), the one nearer
-    the current angles first. The tracker enters where the scan locks."""
-
-    def __init__(self, tracker: CurveTracker, points: tuple[float, ...]) -> None:
-        self.tracker = tracker
-        self.points = tuple(float(u) for u in points)
-
-    def pass_order(self, current: np.ndarray) -> list[ScanPoint]:
-        order = []
-        for u in self.points:
-            on_curve = self.tracker.on_curve(u)
-            pair = [ScanPoint(on_curve, 1, u), ScanPoint(on_curve + QUARTER_TURN, -1, -u)]
-            pair.sort(key=lambda p: float(np.max(np.abs(wrap_angles(p.angles - current)))))
-            order += pair
-        return order
-
-    def note_locked(self, surrogate: float) -> None:
-        """The curve scan does not use the surrogate."""

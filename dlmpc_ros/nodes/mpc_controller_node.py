@@ -32,6 +32,7 @@ from dlmpc_ros.ros.controller_base import ControllerNodeBase
 
 if TYPE_CHECKING:  # torch: imported once the node exists (see MPCControllerNode)
     from dlmpc_ros.control.dlmpc import DLMPCController
+    from dlmpc_ros.control.paper_loops import PaperDLMPC
 
 #: The :class:`DLMPCConfig` fields that hold the other configs (not settings).
 NESTED = frozenset({'limits', 'acquisition', 'tracking', 'planner'})
@@ -133,10 +134,11 @@ class MPCControllerNode(ControllerNodeBase):
             self.controller = load_dlmpc(models_dir(self.values['models_dir']), config)
         except (ModelFileError, FileNotFoundError) as err:
             raise params.StartupError(str(err)) from None
-        self.controller.warm_up()
+        if hasattr(self.controller, 'warm_up'):  # the paper's MP-RNN plans
+            self.controller.warm_up()
         self.start()
 
-    def fresh_controller(self) -> DLMPCController:
+    def fresh_controller(self) -> DLMPCController | PaperDLMPC:
         return self.controller.fresh()
 
 

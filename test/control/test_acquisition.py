@@ -4,12 +4,11 @@ import numpy as np
 import pytest
 import torch
 
-from dlmpc_ros.control.acquisition import (CURVE_POINTS, TRAVEL_PERIODS, WEAK_FIELD,
-                                          LockSupervisor, ScanPoint)
-from dlmpc_ros.control.dlmpc import DLMPCController
+from dlmpc_ros.control.dlmpc import (CURVE_POINTS, TRAVEL_PERIODS, WEAK_FIELD, DLMPCController,
+                                    LockSupervisor, ScanPoint)
 from dlmpc_ros.control.dlmpc_config import AcquisitionConfig, DLMPCConfig
 from dlmpc_ros.control.step import AngleLimits
-from dlmpc_ros.control.paper_loops import MapScan, scan_surrogates
+from dlmpc_ros.control.paper_loops import MapScan, PaperDLMPC, scan_surrogates
 from dlmpc_ros.learning.kmap import KMap, KMapConfig
 from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
 
@@ -94,7 +93,7 @@ def test_dlmpc_scans_within_the_servo_limits_while_unlocked():
     kmap = KMap(KMapConfig(hidden=16), generator=torch.Generator().manual_seed(0))
     mprnn = MPRNN(MPRNNConfig(window=2, horizon=4, n_hidden=16, n_latent=8))
     config = DLMPCConfig(acquisition=AcquisitionConfig(patience=3), error_threshold=1e6)
-    ctrl = DLMPCController(kmap, mprnn, config, target_objective=0.2)
+    ctrl = PaperDLMPC(kmap, mprnn, config, target_objective=0.2)
     assert ctrl.acquisition.threshold == pytest.approx(0.1)
     angles = np.zeros(4)
     modes, measured = [], []
@@ -111,19 +110,17 @@ def test_dlmpc_scans_within_the_servo_limits_while_unlocked():
     # soon as the servos report the command reached; at the point it is measured again
     assert all(measured[:3]) and not all(measured[3:])
     assert ctrl.step(np.r_[6.0, 30.0, angles], 0.0).mode != 'acquire'  # O = 0.2: locked
-    assert DLMPCController(kmap, mprnn, config).acquisition is None  # no target: no scan
+    assert PaperDLMPC(kmap, mprnn, config).acquisition is None  # no target: no scan
     fresh = ctrl.fresh()
     assert fresh.acquisition is not ctrl.acquisition and fresh.acquisition.unlocked == 0
 
 
 def test_with_a_tracking_curve_the_scan_visits_the_curve_and_its_twin_and_tracking_starts_there():
     curve = toy_curve()
-    kmap = KMap(KMapConfig(hidden=16), generator=torch.Generator().manual_seed(0))
-    mprnn = MPRNN(MPRNNConfig(window=2, horizon=4, n_hidden=16, n_latent=8))
     acquisition = AcquisitionConfig(patience=2, dwell_periods=2)
     config = DLMPCConfig(acquisition=acquisition, error_threshold=1e6,
                          limits=AngleLimits(max_step=10.0))  # servos arrive at once
-    ctrl = DLMPCController(kmap, mprnn, config, target_objective=0.2, curve=curve)
+    ctrl = DLMPCController(config, target_objective=0.2, curve=curve)
     reach = ctrl.tracker.low                                   # the end of the tracker's reach
     assert reach < GRID[0] and CURVE_POINTS[0] == pytest.approx(reach)
     assert np.all(np.diff(CURVE_POINTS) > 0)                   # from there inward

@@ -8,6 +8,7 @@ import torch
 
 from dlmpc_ros.control.dlmpc import DLMPCController
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig
+from dlmpc_ros.control.paper_loops import PaperDLMPC
 from dlmpc_ros.control.step import AngleLimits
 from dlmpc_ros.learning.kmap import KMap, KMapConfig
 from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
@@ -15,12 +16,14 @@ from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
 from test.control.toy_curve import toy_curve
 
 
-def _controller(curve=None, **config) -> DLMPCController:
-    """Small untrained models; with ``curve`` also a lock level (O 0.2 x 0.5)."""
+def _controller(curve=None, **config) -> DLMPCController | PaperDLMPC:
+    """The paper's loops on small untrained models; with ``curve`` the default strategy on it
+    (lock level O 0.2 x 0.5)."""
+    if curve is not None:
+        return DLMPCController(DLMPCConfig(**config), target_objective=0.2, curve=curve)
     kmap = KMap(KMapConfig(hidden=16), generator=torch.Generator().manual_seed(0))
     mprnn = MPRNN(MPRNNConfig(window=2, horizon=4, n_hidden=16, n_latent=8))
-    return DLMPCController(kmap, mprnn, DLMPCConfig(**config), curve=curve,
-                           target_objective=None if curve is None else 0.2)
+    return PaperDLMPC(kmap, mprnn, DLMPCConfig(**config))
 
 
 def _measurement(rng, angles):
@@ -28,7 +31,7 @@ def _measurement(rng, angles):
                  angles]
 
 
-def _run(ctrl: DLMPCController, periods: int, seed: int, surrogate: float | None = 0.05):
+def _run(ctrl: PaperDLMPC, periods: int, seed: int, surrogate: float | None = 0.05):
     """Drive the controller with noisy measurements at its own angles; (modes, last step)."""
     rng = np.random.default_rng(seed)
     angles = np.zeros(4)
@@ -83,9 +86,10 @@ def test_silent_estimator_holds_the_angles_in_the_inner_loop():
 def test_controller_has_no_way_to_receive_the_true_birefringence():
     # its verb takes the measurement and the estimate only; that it decides without K is
     # tested by behaviour in test/evaluation/test_no_true_k.py
-    params = inspect.signature(DLMPCController.step).parameters
-    assert list(params) == ['self', 'measurement', 'surrogate']
-    assert not hasattr(DLMPCController, 'observe_truth')
+    for kind in (DLMPCController, PaperDLMPC):
+        params = inspect.signature(kind.step).parameters
+        assert list(params) == ['self', 'measurement', 'surrogate']
+        assert not hasattr(kind, 'observe_truth')
 
 
 @pytest.mark.parametrize('bad', [{'min_iterations': 0}, {'learning_rate': 0.0},

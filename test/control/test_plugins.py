@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from dlmpc_ros.control.factory import CONTROLLERS
+from dlmpc_ros.control.paper_loops import PaperDLMPC
 from dlmpc_ros.control.step import MODES, AngleLimits
 from dlmpc_ros.control.plugins import ControllerSpecError, build, label, registered
 from dlmpc_ros.evaluation.runs import RunSpec, run_fast
@@ -39,7 +40,7 @@ def test_the_built_in_controllers_are_registered_like_any_other():
 
 def test_the_paper_s_dl_mpc_is_a_registered_controller_without_the_added_parts():
     paper = build('dlmpc_paper', models_dir(), AngleLimits())
-    assert paper.acquisition is None and paper.tracker is None and paper.planner is None
+    assert isinstance(paper, PaperDLMPC) and paper.acquisition is None
     assert [mode.name for mode in paper.modes] == ['outer', 'inner', 'hold']
     # it reads the VAE's surrogate, so the harness runs the estimator for it as for dlmpc
     record = run_fast(RunSpec('sinusoidal', 1, 'dlmpc_paper', round_trips=60), models_dir())

@@ -4,7 +4,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-import torch
 
 from dlmpc_ros.control.dlmpc import DLMPCController
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig, TrackingConfig
@@ -13,8 +12,6 @@ from dlmpc_ros.control import tracking
 from dlmpc_ros.control.tracking import (COOLDOWN, TRACKER_TRANSITIONS, TURN_PERIODS, CurveTracker,
                                        TrackerState, TurnEvent)
 from dlmpc_ros.core.symmetry import QUARTER_TURN
-from dlmpc_ros.learning.kmap import KMap, KMapConfig
-from dlmpc_ros.learning.mprnn import MPRNN, MPRNNConfig
 
 from test.control.toy_curve import ANGLES, GRID
 
@@ -572,11 +569,8 @@ def test_bad_curves_are_rejected():
 
 
 def test_dlmpc_tracks_once_locked_and_reports_its_estimate():
-    kmap = KMap(KMapConfig(hidden=16), generator=torch.Generator().manual_seed(0))
-    mprnn = MPRNN(MPRNNConfig(window=2, horizon=4, n_hidden=16, n_latent=8))
     cfg = DLMPCConfig(tracking=TrackingConfig(entry_patience=3, settle=0))
-    ctrl = DLMPCController(kmap, mprnn, cfg, target_objective=0.2,
-                           curve=(GRID, ANGLES, 0.2 + 0 * GRID))
+    ctrl = DLMPCController(cfg, target_objective=0.2, curve=(GRID, ANGLES, 0.2 + 0 * GRID))
     angles, modes = np.zeros(4), []
     for _ in range(30):
         o = _objective(angles, 0.1) if modes and modes[-1] == 'track' else 0.19
@@ -586,10 +580,8 @@ def test_dlmpc_tracks_once_locked_and_reports_its_estimate():
     assert modes[:3] != ['track'] * 3 and modes[-1] == 'track'
     assert step.surrogate == pytest.approx(ctrl.tracker.estimate)
     assert ctrl.fresh().tracker is not None and not ctrl.fresh().tracker.active
-    # Without the curve, or with tracking off, there is no tracker.
-    assert DLMPCController(kmap, mprnn, cfg, target_objective=0.2).tracker is None
-    off = DLMPCConfig(tracking=None)
-    assert DLMPCController(kmap, mprnn, off, 0.2, (GRID, ANGLES, GRID)).tracker is None
+    with pytest.raises(ValueError, match='tracking settings'):  # tracking off: the paper's
+        DLMPCController(DLMPCConfig(tracking=None), 0.2, (GRID, ANGLES, GRID))
 
 
 def test_an_entry_keeps_the_half_wave_plate_in_the_frame_the_scan_locked_in():
