@@ -1,20 +1,16 @@
 """What both controller nodes share: a decision at most once per control period of
 /laser/state, on states taken at the angles it commanded.
 
-A decision is due at least ``period`` round trips after the last one, once the reported
-angles have been within ``settle_tolerance`` of the last command for the round trips a
-measurement averages, or ``settle_timeout`` round trips after the last decision whatever
-they are (:class:`~dlmpc_ros.control.step.PeriodMeasurement`): its
-measurement, the mean E and M of the last ``measurement_round_trips`` settled states with
-their angles, is published on /controller/measurement (what the estimator reads). A node
-that uses the estimator acts once the estimate of the same round trip arrives, or after
-``estimator_timeout`` seconds without it (the controller then gets no surrogate and says
-so on its status, ``estimator_age`` = periods since the last estimate). A decision is
-never skipped: when a period has passed since the pending decision and its estimate has
-not come, the pending one is acted on at once without it, because the controller's
-histories assume one row per decision. It publishes the angles on /laser/angles_cmd and
-the decision on /controller/status; /diagnostics carries the measured settle time of its
-commands and warns when decisions had to be made before the servos settled.
+Each state goes to the period's measurement (:class:`~dlmpc_ros.control.step.PeriodMeasurement`:
+a decision is due ``period`` round trips after the last, once the servos have settled at the
+last command for the round trips a measurement averages, or ``settle_timeout`` round trips
+regardless). Its measurement is published on /controller/measurement (what the estimator
+reads), the controller steps, and the node publishes the angles on /laser/angles_cmd and the
+decision on /controller/status. A controller that reads the estimator's surrogate (the paper's
+loops) acts once the estimate of the same round trip arrives, or ``estimator_timeout`` s
+without it (:mod:`~dlmpc_ros.ros.estimates`); a decision is never skipped, since the
+controller's histories assume one row per decision. /diagnostics carries the measured settle
+time of the commands and warns when decisions had to be made before the servos settled.
 """
 
 from __future__ import annotations
@@ -36,10 +32,9 @@ from dlmpc_ros.ros.controller_params import (COMMON_DEFAULTS, COMMON_DESCRIPTION
                                              COMMON_RANGES, limits_from,
                                              period_measurement_from)
 from dlmpc_ros.ros.diagnostics import DiagnosticsPublisher
+from dlmpc_ros.ros.estimates import EstimateInbox, subscribe_when_heard
 from dlmpc_ros.ros.io import QOS, vector_message
 
-#: Longest wait at start for the estimator to read /controller/measurement [s].
-ESTIMATOR_WAIT = 3.0
 #: Latest decisions whose modes /diagnostics sums up.
 RECENT_DECISIONS = 1000
 
@@ -64,12 +59,10 @@ class ControllerNodeBase(Node):
         self._pending: np.ndarray | None = None        # the period's state message
         self._pending_measurement = np.zeros(6)        # and its measurement
         self._pending_since = 0.0
-        self._estimates: dict[int, float] = {}
-        self._last_estimate_round_trip: int | None = None
+        self._inbox: EstimateInbox | None = None  # the surrogates, if the controller reads them
         self._last_acted = -1
         self.steps = 0
         self._last_state: float | None = None
-        self._last_estimate: float | None = None
         self._last_mode: str | None = None
         self._recent_modes: deque[str] = deque(maxlen=RECENT_DECISIONS)
         self._last_objective: float | None = None
@@ -86,26 +79,12 @@ class ControllerNodeBase(Node):
                                                  QOS[itf.TOPIC_CONTROLLER_STATUS])
         self._measurement_pub = self.create_publisher(Float64MultiArray, itf.TOPIC_MEASUREMENT,
                                                       QOS[itf.TOPIC_MEASUREMENT])
-        if self.uses_estimator:
-            self.create_subscription(Float64MultiArray, itf.TOPIC_ESTIMATE, self._on_estimate,
-                                     QOS[itf.TOPIC_ESTIMATE])
-            # read the laser once the estimator reads the measurements (or after a wait),
-            # so that the first decision does not wait for an estimate that cannot come
-            waiting_since = time.monotonic()
-
-            def subscribe_when_heard() -> None:
-                heard = self._measurement_pub.get_subscription_count() > 0
-                if heard or time.monotonic() - waiting_since > ESTIMATOR_WAIT:
-                    if not heard:
-                        self.get_logger().warning(
-                            f'no estimator reads {itf.TOPIC_MEASUREMENT} after '
-                            f'{ESTIMATOR_WAIT:g} s; controlling without it until it does')
-                    self._subscription_timer.cancel()
-                    self._subscribe_state()
-            self._subscription_timer = self.create_timer(0.02, subscribe_when_heard)
+        if self.uses_estimator:  # read the laser once the estimator reads the measurements
+            self._inbox = EstimateInbox(self, self._try_act, self._warn)
+            subscribe_when_heard(self, self._measurement_pub, self._subscribe_state)
+            self.create_timer(0.02, self._check_timeout)
         else:
             self._subscribe_state()
-        self.create_timer(0.02, self._check_timeout)
         self._diagnostics = DiagnosticsPublisher(self, self._health)
 
     def _subscribe_state(self) -> None:
@@ -116,8 +95,8 @@ class ControllerNodeBase(Node):
         findings.new_drops(self._drops, self._warn)
         started = self._diagnostics.started
         findings.input(itf.TOPIC_STATE, self._last_state, started, now, silent_level=ERROR)
-        if self.uses_estimator:  # the controller holds without it: a warning
-            findings.input(itf.TOPIC_ESTIMATE, self._last_estimate, started, now,
+        if self._inbox is not None:  # the controller holds without it: a warning
+            findings.input(itf.TOPIC_ESTIMATE, self._inbox.last_heard, started, now,
                            silent_level=WARN)
         self._settling.report(findings, self.values['settle_timeout'],
                               self.values['settle_tolerance'])
@@ -150,26 +129,6 @@ class ControllerNodeBase(Node):
         self._try_act()
         return None
 
-    def _on_estimate(self, msg: Float64MultiArray) -> None:
-        data = msg.data
-        fault = None
-        if len(data) < len(itf.ESTIMATE_FIELDS):
-            fault = f'expected at least {len(itf.ESTIMATE_FIELDS)} values, got {len(data)}'
-        elif not all(math.isfinite(x) and abs(x) < 1e300 for x in data):
-            fault = 'non-finite or out-of-range value'
-        elif data[0] < 0 or data[0] != int(data[0]):
-            fault = f'round_trip = {data[0]} is not a count'
-        if fault is not None:
-            return self._warn.dropped(itf.TOPIC_ESTIMATE, fault)
-        round_trip = int(data[0])
-        self._last_estimate = time.monotonic()
-        self._estimates[round_trip] = float(data[1])
-        self._last_estimate_round_trip = round_trip
-        while len(self._estimates) > 64:
-            self._estimates.pop(next(iter(self._estimates)))
-        self._try_act()
-        return None
-
     def _check_timeout(self) -> None:
         now = self.get_clock().now().nanoseconds * 1e-9
         if (self._pending is not None
@@ -180,10 +139,10 @@ class ControllerNodeBase(Node):
     def _try_act(self) -> None:
         if self._pending is None:
             return
-        if not self.uses_estimator:
+        if self._inbox is None:
             self._act(None)
             return
-        surrogate = self._estimates.get(int(self._pending[0]))
+        surrogate = self._inbox.surrogate(int(self._pending[0]))
         if surrogate is not None:
             self._act(surrogate)
 
@@ -211,8 +170,7 @@ class ControllerNodeBase(Node):
             self.controller = self.fresh_controller()
         self._periods.command(step.angles, step.measure)
         self._cmd_pub.publish(vector_message(itf.ANGLE_FIELDS, step.angles))
-        age = -1.0 if self._last_estimate_round_trip is None else (
-            (round_trip - self._last_estimate_round_trip) / self.period)
+        age = -1.0 if self._inbox is None else self._inbox.age(round_trip, self.period)
         self._last_mode, self._last_objective = step.mode, float(state[3])
         self._recent_modes.append(step.mode)
         self._estimate_age = None if age < 0 else age

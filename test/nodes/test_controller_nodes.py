@@ -180,6 +180,7 @@ def test_mpc_controller_tracks_the_curve_once_locked_and_reads_no_estimate(
     node = _start_mpc(probe, ros_env, tmp_path, 'estimator_timeout:=30.0', 'max_step:=3.0',
                       estimates=False)
     try:
+        probe.spin_until(lambda: 'mpc_controller' in probe.node.get_node_names(), 30, 'node')
         topics = {name for name, _ in probe.node.get_subscriber_names_and_types_by_node(
             'mpc_controller', '/')}
         assert topics == {itf.TOPIC_STATE}
