@@ -11,7 +11,7 @@ Prints, and with ``--out`` writes as JSON:
   (``plugins.py``, ``factory.py``);
 - **per-period path**: the modules a control period of the default strategy runs
   through, from the node's callback to the published command (``PER_PERIOD``, read off
-  the code: the node's base class, the period's measurement, the supervisor with its
+  the code: the decision loop, the period's measurement, the supervisor with its
   modes, their parts, the learned models' forward passes), and their lines.
 
 Usage::
@@ -33,14 +33,15 @@ CONTROL = ROOT / 'dlmpc_ros' / 'control'
 #: control/ modules that are not the DL-MPC's control law.
 NOT_CONTROL_LAW = {'__init__.py', 'esc.py', 'ga.py', 'bo.py', 'drl.py', 'observation.py',
                    'baselines.py', 'plugins.py', 'factory.py'}
-#: Modules a control period of the default strategy runs through, callback to published
-#: command (the paper's loops add ``control/paper_loops.py``, ``learning/kmap.py``,
-#: ``learning/features.py`` and ``learning/mprnn.py``). The node's own module
-#: (``nodes/mpc_controller_node.py``) is not among them: it turns parameters into a
-#: controller at start, and the callback, the decision and the publishing are its base
-#: class's; nor are the settings (``control/dlmpc_config.py``), which the modules read
-#: but which do nothing.
-PER_PERIOD = ('ros/controller_base.py', 'control/step.py', 'control/dlmpc.py',
+#: Modules a control period of the default strategy runs through, from the callback (the
+#: decision loop's ``on_state``) to the published command (the paper's loops add
+#: ``control/paper_loops.py``, ``learning/kmap.py``, ``learning/features.py``,
+#: ``learning/mprnn.py`` and the estimates, ``ros/estimates.py``). Not among them: the
+#: nodes' modules (``nodes/mpc_controller_node.py``, ``ros/controller_base.py``), which turn
+#: parameters into a controller and its loop at start and report /diagnostics once a second,
+#: and the settings (``control/dlmpc_config.py``), which the modules read but which do
+#: nothing.
+PER_PERIOD = ('ros/decision_loop.py', 'control/step.py', 'control/dlmpc.py',
               'control/tracking.py', 'control/rotation_planner.py',
               'learning/response.py')
 

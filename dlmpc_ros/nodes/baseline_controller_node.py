@@ -25,6 +25,7 @@ from dlmpc_ros import interfaces as itf
 from dlmpc_ros.control.factory import CONTROLLERS
 from dlmpc_ros.control.ga import GAConfig
 from dlmpc_ros.control.plugins import build
+from dlmpc_ros.control.step import Controller
 from dlmpc_ros.paths import models_dir
 from dlmpc_ros.ros import params
 from dlmpc_ros.ros.controller_base import ControllerNodeBase
@@ -88,10 +89,10 @@ class BaselineControllerNode(ControllerNodeBase):
             self._truth.pop(next(iter(self._truth)))
         return None
 
-    def before_step(self, state: np.ndarray) -> None:
+    def before_step(self, controller: Controller, state: np.ndarray) -> None:
         k = self._truth.get(int(state[0]))
         if k is not None:  # the simulator publishes the truth before the state
-            self.controller.observe_truth(k)
+            controller.observe_truth(k)
 
 
 def main(args: list[str] | None = None) -> None:

@@ -138,8 +138,9 @@ class MPCControllerNode(ControllerNodeBase):
             self.controller.warm_up()
         self.start()
 
-    def fresh_controller(self) -> DLMPCController | PaperDLMPC:
-        return self.controller.fresh()
+    def fresh_controller(self, controller: DLMPCController | PaperDLMPC
+                         ) -> DLMPCController | PaperDLMPC:
+        return controller.fresh()
 
 
 def main(args: list[str] | None = None) -> None:

@@ -16,7 +16,6 @@ from rclpy.publisher import Publisher
 from std_msgs.msg import Float64MultiArray
 
 from dlmpc_ros import interfaces as itf
-from dlmpc_ros.ros.io import QOS
 
 #: Longest wait at start for the estimator to read /controller/measurement [s].
 ESTIMATOR_WAIT = 3.0
@@ -25,19 +24,17 @@ KEEP = 64
 
 
 class EstimateInbox:
-    """The latest surrogates by round trip; ``on_estimate()`` runs after each arrives (a
-    malformed message is logged by ``warn`` and dropped)."""
+    """The latest surrogates by round trip (a malformed message is logged by ``warn`` and
+    dropped)."""
 
-    def __init__(self, node: Node, on_estimate: Callable[[], None],
-                 warn: itf.RateLimitedLog) -> None:
-        self._on_estimate, self._warn = on_estimate, warn
+    def __init__(self, warn: itf.RateLimitedLog) -> None:
+        self._warn = warn
         self._by_round_trip: dict[int, float] = {}
         self.last_heard: float | None = None  # monotonic time of the latest [s]
         self.latest_round_trip: int | None = None
-        node.create_subscription(Float64MultiArray, itf.TOPIC_ESTIMATE, self._receive,
-                                 QOS[itf.TOPIC_ESTIMATE])
 
-    def _receive(self, msg: Float64MultiArray) -> None:
+    def add(self, msg: Float64MultiArray) -> bool:
+        """A /controller/estimate message; whether it was kept."""
         data = msg.data
         fault = None
         if len(data) < len(itf.ESTIMATE_FIELDS):
@@ -48,14 +45,14 @@ class EstimateInbox:
             fault = f'round_trip = {data[0]} is not a count'
         if fault is not None:
             self._warn.dropped(itf.TOPIC_ESTIMATE, fault)
-            return
+            return False
         round_trip = int(data[0])
         self.last_heard = time.monotonic()
         self._by_round_trip[round_trip] = float(data[1])
         self.latest_round_trip = round_trip
         while len(self._by_round_trip) > KEEP:
             self._by_round_trip.pop(next(iter(self._by_round_trip)))
-        self._on_estimate()
+        return True
 
     def surrogate(self, round_trip: int) -> float | None:
         """The surrogate for round trip r's measurement (None: not here)."""

@@ -88,8 +88,9 @@ CASES = {
     'mpc-no-models': (MPC, ['-p', 'models_dir:=/nonexistent'], ['is missing', 'dlmpc-train']),
     'mpc-corrupt': (MPC, ['-p', 'models_dir:={models}'], ['kmap.pt is corrupt',
                                                           'dlmpc-train kmap']),
-    'mpc-truncated': (MPC, ['-p', 'models_dir:={models}'], ['mprnn.pt is corrupt',
-                                                            'dlmpc-train mprnn']),
+    # the paper's loops read the MP-RNN (the default strategy does not load it)
+    'mpc-truncated': (MPC, ['-p', 'models_dir:={models}', '-p', 'strategy:=paper'],
+                      ['mprnn.pt is corrupt', 'dlmpc-train mprnn']),
     # a loadable kmap.pt whose metrics are a list: an AttributeError traceback once
     'mpc-kmap-metrics': (MPC, ['-p', 'models_dir:={models}'], ['kmap.pt has malformed metrics',
                                                                'dlmpc-train kmap']),
