@@ -53,6 +53,155 @@ if TYPE_CHECKING:  # torch-based: the caller loads it
 SURROGATE_LIMIT = 1e3
 
 
+class Supervisor:
+    """Modes in priority order (:attr:`modes`), one :meth:`step` per control period. A
+    subclass sets the modes and may read each plausible measurement before they decide
+    (:meth:`observe`) and the decision after (:meth:`decided`)."""
+
+    name = 'dlmpc'
+    #: Whether the harnesses and the node give it the VAE's surrogate (the paper's loops).
+    uses_estimator = False
+
+    def __init__(self, config: DLMPCConfig, modes: list[Mode]) -> None:
+        self.config, self.modes = config, modes
+
+    def observe(self, measurement: np.ndarray) -> float:
+        """A plausible measurement (6,) before the modes decide -> its forecast's error (NaN)."""
+        return float('nan')
+
+    def decided(self, decision: Decision) -> None:
+        """The period's decision (after the modes)."""
+
+    def step(self, measurement: np.ndarray, surrogate: float | None = None) -> ControlStep:
+        """Measurement (6,) and the estimator's surrogate for it -> next period's angles."""
+        started = time.perf_counter()
+        measurement = np.asarray(measurement, float)
+        if implausible(measurement) is not None:  # hold; the models never see it
+            current = np.nan_to_num(measurement[2:6], nan=0.0)
+            return ControlStep(angles=self.config.limits.apply(current, current), mode='hold',
+                               latency_ms=1e3 * (time.perf_counter() - started))
+        if surrogate is not None and not abs(surrogate) <= SURROGATE_LIMIT:
+            surrogate = None  # no VAE latent is that far out: treat it as no estimate
+        error = self.observe(measurement)
+        period = Period(
+            current=measurement[2:6],
+            objective=measurement[0] / measurement[1] if measurement[1] > 0 else float('nan'),
+            surrogate=float('nan') if surrogate is None else float(surrogate),
+            energy=float(measurement[0]))
+        decision = self._decide(period)
+        angles = self.config.limits.apply(period.current, decision.angles)
+        self.decided(decision)
+        reported = period.surrogate if decision.surrogate is None else decision.surrogate
+        return ControlStep(angles=angles, mode=decision.mode, surrogate=reported,
+                           prediction_error=error,
+                           predicted_objective=decision.predicted_objective,
+                           iterations=decision.iterations,
+                           latency_ms=1e3 * (time.perf_counter() - started),
+                           measure=not decision.travel)
+
+    def _decide(self, period: Period) -> Decision:
+        """The first mode's decision; the modes after it stand down."""
+        for i, mode in enumerate(self.modes):
+            decision = mode.decide(period)
+            if decision is not None:
+                for later in self.modes[i + 1:]:
+                    later.stand_down()
+                return decision
+        raise AssertionError('HoldMode always decides')  # pragma: no cover
+
+
+class AcquireMode(Mode):
+    """Scan for a pulse while unlocked; the tracker (if any) enters where the scan locks."""
+
+    name = 'acquire'
+
+    def __init__(self, supervisor: LockSupervisor, tracker: CurveTracker | None = None) -> None:
+        self.supervisor, self.tracker = supervisor, tracker
+
+    def decide(self, period: Period) -> Decision | None:
+        scan = self.supervisor.step(period.objective, period.current, period.surrogate,
+                                    period.energy)
+        if scan is not None:
+            return Decision(scan, self.name, travel=self.supervisor.travelling)
+        point = self.supervisor.locked_at
+        if point is not None and point.branch and self.tracker is not None:
+            self.tracker.enter_at(point.estimate, point.branch, period.objective, period.current)
+        return None
+
+
+class TrackMode(Mode):
+    """Hold the laser on the tracking curve and follow K along it by the measured O."""
+
+    name = 'track'
+
+    def __init__(self, tracker: CurveTracker) -> None:
+        self.tracker = tracker
+
+    def decide(self, period: Period) -> Decision | None:
+        on_curve = self.tracker.step(period.objective, period.current)
+        if on_curve is None:
+            return None
+        return Decision(on_curve, 'plan' if self.tracker.planned else self.name,
+                        surrogate=self.tracker.estimate)
+
+    def stand_down(self) -> None:
+        self.tracker.interrupt()
+
+
+class HoldMode(Mode):
+    """Keep the angles (the last resort)."""
+
+    name = 'hold'
+
+    def decide(self, period: Period) -> Decision:
+        return Decision(period.current, self.name)
+
+
+class DLMPCController(Supervisor):
+    """The DL-MPC's default strategy: acquire, track (and plan), hold.
+
+    ``target_objective``: the mean O of the map's training targets (the lock threshold is
+    ``acquisition.lock_fraction`` x it); ``curve``: the tracking curve ``(grid (n,), angles
+    (n, 4), steady O (n,))``; ``response``: the steady-response predictor (None: no planner);
+    ``rotation_prior`` and ``turn_correction``: what a calibration bag taught
+    (:mod:`dlmpc_ros.training.adapt`)."""
+
+    def __init__(self, config: DLMPCConfig, target_objective: float,
+                 curve: tuple[np.ndarray, np.ndarray, np.ndarray],
+                 response: ResponseEnsemble | None = None,
+                 rotation_prior: tuple[np.ndarray, np.ndarray] | None = None,
+                 turn_correction: np.ndarray | None = None) -> None:
+        if config.tracking is None:  # (without them: the paper's loops, PaperDLMPC)
+            raise ValueError('DLMPCController tracks a curve: it needs tracking settings')
+        self.target_objective, self.curve, self.response = target_objective, curve, response
+        self.rotation_prior, self.turn_correction = rotation_prior, turn_correction
+        threshold = (config.acquisition or AcquisitionConfig()).lock_fraction * target_objective
+        self.planner: RotationPlanner | None = None
+        if response is not None and config.planner is not None:
+            self.planner = RotationPlanner(response, config.planner, turn_correction)
+        grid, angles, expected = curve
+        self.tracker = CurveTracker(grid, angles, threshold, config.tracking, expected,
+                                    config.limits, self.planner)
+        if rotation_prior is not None:
+            self.tracker.rotation.start_from(*rotation_prior)
+        self.acquisition: LockSupervisor | None = None
+        if config.acquisition is not None:
+            self.acquisition = LockSupervisor(threshold, CurveScan(self.tracker, CURVE_POINTS),
+                                              config.acquisition, config.limits)
+        acquire = [] if self.acquisition is None else [AcquireMode(self.acquisition, self.tracker)]
+        super().__init__(config, [*acquire, TrackMode(self.tracker), HoldMode()])
+
+    def fresh(self) -> DLMPCController:
+        """A controller with the same models and settings and no history."""
+        return DLMPCController(self.config, self.target_objective, self.curve, self.response,
+                               self.rotation_prior, self.turn_correction)
+
+    def observe(self, measurement: np.ndarray) -> float:
+        if self.planner is not None:
+            self.planner.observe(measurement[0], measurement[1])
+        return float('nan')
+
+
 #: Largest angle gap [rad] at which the servos count as arrived at a scan point.
 ARRIVE_TOLERANCE = 1e-3
 #: Periods after which a scan point counts as reached anyway (a point outside the limits).
@@ -228,152 +377,3 @@ class CurveScan:
 
     def note_locked(self, surrogate: float) -> None:
         """The curve scan does not use the surrogate."""
-
-
-class Supervisor:
-    """Modes in priority order (:attr:`modes`), one :meth:`step` per control period. A
-    subclass sets the modes and may read each plausible measurement before they decide
-    (:meth:`observe`) and the decision after (:meth:`decided`)."""
-
-    name = 'dlmpc'
-    #: Whether the harnesses and the node give it the VAE's surrogate (the paper's loops).
-    uses_estimator = False
-
-    def __init__(self, config: DLMPCConfig, modes: list[Mode]) -> None:
-        self.config, self.modes = config, modes
-
-    def observe(self, measurement: np.ndarray) -> float:
-        """A plausible measurement (6,) before the modes decide -> its forecast's error (NaN)."""
-        return float('nan')
-
-    def decided(self, decision: Decision) -> None:
-        """The period's decision (after the modes)."""
-
-    def step(self, measurement: np.ndarray, surrogate: float | None = None) -> ControlStep:
-        """Measurement (6,) and the estimator's surrogate for it -> next period's angles."""
-        started = time.perf_counter()
-        measurement = np.asarray(measurement, float)
-        if implausible(measurement) is not None:  # hold; the models never see it
-            current = np.nan_to_num(measurement[2:6], nan=0.0)
-            return ControlStep(angles=self.config.limits.apply(current, current), mode='hold',
-                               latency_ms=1e3 * (time.perf_counter() - started))
-        if surrogate is not None and not abs(surrogate) <= SURROGATE_LIMIT:
-            surrogate = None  # no VAE latent is that far out: treat it as no estimate
-        error = self.observe(measurement)
-        period = Period(
-            current=measurement[2:6],
-            objective=measurement[0] / measurement[1] if measurement[1] > 0 else float('nan'),
-            surrogate=float('nan') if surrogate is None else float(surrogate),
-            energy=float(measurement[0]))
-        decision = self._decide(period)
-        angles = self.config.limits.apply(period.current, decision.angles)
-        self.decided(decision)
-        reported = period.surrogate if decision.surrogate is None else decision.surrogate
-        return ControlStep(angles=angles, mode=decision.mode, surrogate=reported,
-                           prediction_error=error,
-                           predicted_objective=decision.predicted_objective,
-                           iterations=decision.iterations,
-                           latency_ms=1e3 * (time.perf_counter() - started),
-                           measure=not decision.travel)
-
-    def _decide(self, period: Period) -> Decision:
-        """The first mode's decision; the modes after it stand down."""
-        for i, mode in enumerate(self.modes):
-            decision = mode.decide(period)
-            if decision is not None:
-                for later in self.modes[i + 1:]:
-                    later.stand_down()
-                return decision
-        raise AssertionError('HoldMode always decides')  # pragma: no cover
-
-
-class AcquireMode(Mode):
-    """Scan for a pulse while unlocked; the tracker (if any) enters where the scan locks."""
-
-    name = 'acquire'
-
-    def __init__(self, supervisor: LockSupervisor, tracker: CurveTracker | None = None) -> None:
-        self.supervisor, self.tracker = supervisor, tracker
-
-    def decide(self, period: Period) -> Decision | None:
-        scan = self.supervisor.step(period.objective, period.current, period.surrogate,
-                                    period.energy)
-        if scan is not None:
-            return Decision(scan, self.name, travel=self.supervisor.travelling)
-        point = self.supervisor.locked_at
-        if point is not None and point.branch and self.tracker is not None:
-            self.tracker.enter_at(point.estimate, point.branch, period.objective, period.current)
-        return None
-
-
-class TrackMode(Mode):
-    """Hold the laser on the tracking curve and follow K along it by the measured O."""
-
-    name = 'track'
-
-    def __init__(self, tracker: CurveTracker) -> None:
-        self.tracker = tracker
-
-    def decide(self, period: Period) -> Decision | None:
-        on_curve = self.tracker.step(period.objective, period.current)
-        if on_curve is None:
-            return None
-        return Decision(on_curve, 'plan' if self.tracker.planned else self.name,
-                        surrogate=self.tracker.estimate)
-
-    def stand_down(self) -> None:
-        self.tracker.interrupt()
-
-
-class HoldMode(Mode):
-    """Keep the angles (the last resort)."""
-
-    name = 'hold'
-
-    def decide(self, period: Period) -> Decision:
-        return Decision(period.current, self.name)
-
-
-class DLMPCController(Supervisor):
-    """The DL-MPC's default strategy: acquire, track (and plan), hold.
-
-    ``target_objective``: the mean O of the map's training targets (the lock threshold is
-    ``acquisition.lock_fraction`` x it); ``curve``: the tracking curve ``(grid (n,), angles
-    (n, 4), steady O (n,))``; ``response``: the steady-response predictor (None: no planner);
-    ``rotation_prior`` and ``turn_correction``: what a calibration bag taught
-    (:mod:`dlmpc_ros.training.adapt`)."""
-
-    def __init__(self, config: DLMPCConfig, target_objective: float,
-                 curve: tuple[np.ndarray, np.ndarray, np.ndarray],
-                 response: ResponseEnsemble | None = None,
-                 rotation_prior: tuple[np.ndarray, np.ndarray] | None = None,
-                 turn_correction: np.ndarray | None = None) -> None:
-        if config.tracking is None:  # (without them: the paper's loops, PaperDLMPC)
-            raise ValueError('DLMPCController tracks a curve: it needs tracking settings')
-        self.target_objective, self.curve, self.response = target_objective, curve, response
-        self.rotation_prior, self.turn_correction = rotation_prior, turn_correction
-        threshold = (config.acquisition or AcquisitionConfig()).lock_fraction * target_objective
-        self.planner: RotationPlanner | None = None
-        if response is not None and config.planner is not None:
-            self.planner = RotationPlanner(response, config.planner, turn_correction)
-        grid, angles, expected = curve
-        self.tracker = CurveTracker(grid, angles, threshold, config.tracking, expected,
-                                    config.limits, self.planner)
-        if rotation_prior is not None:
-            self.tracker.rotation.start_from(*rotation_prior)
-        self.acquisition: LockSupervisor | None = None
-        if config.acquisition is not None:
-            self.acquisition = LockSupervisor(threshold, CurveScan(self.tracker, CURVE_POINTS),
-                                              config.acquisition, config.limits)
-        acquire = [] if self.acquisition is None else [AcquireMode(self.acquisition, self.tracker)]
-        super().__init__(config, [*acquire, TrackMode(self.tracker), HoldMode()])
-
-    def fresh(self) -> DLMPCController:
-        """A controller with the same models and settings and no history."""
-        return DLMPCController(self.config, self.target_objective, self.curve, self.response,
-                               self.rotation_prior, self.turn_correction)
-
-    def observe(self, measurement: np.ndarray) -> float:
-        if self.planner is not None:
-            self.planner.observe(measurement[0], measurement[1])
-        return float('nan')

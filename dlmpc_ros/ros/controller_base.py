@@ -7,6 +7,7 @@ the commands and warns when decisions had to be made before the servos settled.
 
 from __future__ import annotations
 
+import numpy as np
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
@@ -87,7 +88,7 @@ class ControllerNodeBase(Node):
                                  getattr(supervisor, 'threshold', None), loop.steps,
                                  loop.estimate_age, self.uses_estimator, loop.recent_modes)
 
-    def before_step(self, controller: Controller, state) -> None:
+    def before_step(self, controller: Controller, state: np.ndarray) -> None:
         """Hook run just before the controller's step (the oracle reads its K here)."""
 
     def fresh_controller(self, controller: Controller) -> Controller:

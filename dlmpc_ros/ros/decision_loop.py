@@ -23,6 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 from rclpy.publisher import Publisher
+from std_msgs.msg import Float64MultiArray
 
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.control.step import AngleLimits, Controller, ControlStep, PeriodMeasurement
@@ -72,8 +73,8 @@ class DecisionLoop:
         self.estimate_age: float | None = None
         self.settling = SettleWatch()
 
-    def on_state(self, msg) -> None:
-        """A /laser/state message (``Float64MultiArray``)."""
+    def on_state(self, msg: Float64MultiArray) -> None:
+        """The callback of /laser/state."""
         if not itf.usable_state(msg.data, self._warn):
             return
         self.last_heard = time.monotonic()

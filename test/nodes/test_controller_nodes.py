@@ -1,13 +1,16 @@
-"""The estimator and controller nodes as real processes, probed over ROS."""
+"""The estimator and controller nodes as real processes, probed over ROS; the controller
+nodes' decision loop on the probe's own publishers."""
 
 import math
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from std_msgs.msg import Float64MultiArray
 
 from dlmpc_ros import interfaces as itf
-from dlmpc_ros.control.step import MODES
+from dlmpc_ros.control.step import MODES, AngleLimits, ControlStep, PeriodMeasurement
 from dlmpc_ros.learning.checkpoint import load_checkpoint
 from test.nodes.rosutil import NodeProcess, Probe
 
@@ -266,3 +269,39 @@ def test_controller_answers_every_period_even_when_the_next_state_beats_the_esti
     finally:
         assert node.stop() == 0
     assert "no estimate for round trip 10 before the next period's state" in node.output()
+
+
+class _NotFiniteFirst:
+    """A controller whose first ``bad`` commands are not finite; then it holds the angles."""
+
+    name = 'not_finite_first'
+
+    def __init__(self, bad: int) -> None:
+        self.bad, self.steps = bad, 0
+
+    def step(self, measurement, surrogate=None) -> ControlStep:
+        self.steps += 1
+        angles = np.full(4, np.nan) if self.steps <= self.bad else np.asarray(measurement[2:6])
+        return ControlStep(angles=angles, mode='hold')
+
+
+def test_the_decision_loop_never_sends_a_non_finite_command_and_starts_the_controller_afresh(
+        probe):
+    from dlmpc_ros.ros.decision_loop import DecisionLoop, Publishers
+    commands = probe.listen(itf.TOPIC_ANGLES_CMD)
+    measurements = probe.listen(itf.TOPIC_MEASUREMENT)
+    warnings, replaced = [], []
+    first, second = _NotFiniteFirst(bad=1), _NotFiniteFirst(bad=0)
+    topics = (itf.TOPIC_ANGLES_CMD, itf.TOPIC_CONTROLLER_STATUS, itf.TOPIC_MEASUREMENT)
+    loop = DecisionLoop(first, AngleLimits(), PeriodMeasurement(period=2, round_trips=1),
+                        Publishers(*(probe.publisher(t) for t in topics)),
+                        itf.RateLimitedLog(warnings.append), now=time.monotonic,
+                        fresh=lambda old: replaced.append(old) or second)
+    for r in range(1, 5):  # decisions at round trips 2 and 4, the laser at ANGLES
+        loop.on_state(Float64MultiArray(data=_state(r)))
+    probe.spin_until(lambda: len(commands) >= 2 and len(measurements) >= 2, 30,
+                     'two commands')
+    for cmd in commands:  # the angles held, never NaN
+        np.testing.assert_allclose(cmd.data, ANGLES)
+    assert replaced == [first] and loop.controller is second and second.steps == 1
+    assert 'controller produced' in warnings[0] and loop.steps == 2
