@@ -12,7 +12,8 @@ Prints, and with ``--out`` writes as JSON:
 - **per-period path**: the modules a control period of the default strategy runs
   through, from the node's callback to the published command (``PER_PERIOD``, read off
   the code: the decision loop, the period's measurement, the supervisor with its
-  modes, their parts, the learned models' forward passes), and their lines.
+  modes, their parts, the learned models' forward passes), and their lines (also by kind:
+  code, docstrings, comments, blank).
 
 Usage::
 
@@ -50,6 +51,23 @@ def lines(path: Path) -> int:
     return len(path.read_text().splitlines())
 
 
+def line_kinds(path: Path) -> dict[str, int]:
+    """A module's lines by kind: docstrings, comments, blank, and the rest (code)."""
+    import ast
+    source = path.read_text()
+    docs: set[int] = set()
+    for node in ast.walk(ast.parse(source)):  # string statements: docstrings, attribute docs
+        if isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant) \
+                and isinstance(node.value.value, str):
+            docs.update(range(node.lineno, node.end_lineno + 1))
+    kinds = {'code': 0, 'docstring': 0, 'comment': 0, 'blank': 0}
+    for number, line in enumerate(source.splitlines(), 1):
+        kind = ('docstring' if number in docs else 'blank' if not line.strip()
+                else 'comment' if line.lstrip().startswith('#') else 'code')
+        kinds[kind] += 1
+    return kinds
+
+
 def settings() -> dict[str, list[str]]:
     """Config class -> its setting names (nested configs left out)."""
     from dlmpc_ros.control.dlmpc_config import (AcquisitionConfig, DLMPCConfig, PlannerConfig,
@@ -74,13 +92,15 @@ def measure() -> dict:
     law = {p.name: lines(p) for p in sorted(CONTROL.glob('*.py'))
            if p.name not in NOT_CONTROL_LAW}
     path = {m: lines(ROOT / 'dlmpc_ros' / m) for m in PER_PERIOD}
+    kinds = [line_kinds(ROOT / 'dlmpc_ros' / m) for m in PER_PERIOD]
     return {'settings': {k: len(v) for k, v in per_class.items()},
             'settings_total': sum(len(v) for v in per_class.values()),
             'setting_names': per_class,
             'node_parameters': node_parameters(),
             'control_law_lines': sum(law.values()), 'control_law': law,
             'per_period_modules': len(path), 'per_period_lines': sum(path.values()),
-            'per_period': path}
+            'per_period': path,
+            'per_period_kinds': {k: sum(c[k] for c in kinds) for k in kinds[0]}}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -92,7 +112,8 @@ def main(argv: list[str] | None = None) -> int:
           + ', '.join(f'{k} {v}' for k, v in m['settings'].items())
           + f"); node parameters: {len(m['node_parameters'])}")
     print(f"control law: {m['control_law_lines']} lines in {len(m['control_law'])} modules")
-    print(f"per-period path: {m['per_period_modules']} modules, {m['per_period_lines']} lines")
+    print(f"per-period path: {m['per_period_modules']} modules, {m['per_period_lines']} lines ("
+          + ', '.join(f'{k} {v}' for k, v in m['per_period_kinds'].items()) + ')')
     if args.out:
         args.out.write_text(json.dumps(m, indent=1) + '\n')
     return 0
