@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from dlmpc_ros.control.dlmpc import AcquireMode, HoldMode, LockSupervisor, ScanPoint, Supervisor
-from dlmpc_ros.control.dlmpc_config import ERROR_MEMORY, AcquisitionConfig, DLMPCConfig
+from dlmpc_ros.control.dlmpc_config import ERROR_MEMORY, DLMPCConfig
 from dlmpc_ros.control.step import AngleLimits, Decision, Mode, Period
 from dlmpc_ros.learning.features import features
 from dlmpc_ros.learning.kmap import KMap
@@ -199,10 +199,9 @@ class PaperDLMPC(Supervisor):
         self.model.eval()
         for p in self.model.parameters():
             p.requires_grad_(False)
-        lock_fraction = (config.acquisition or AcquisitionConfig()).lock_fraction
         self.acquisition: LockSupervisor | None = None
         if target_objective is not None and config.acquisition is not None:
-            self.acquisition = LockSupervisor(lock_fraction * target_objective,
+            self.acquisition = LockSupervisor(config.acquisition.lock_fraction * target_objective,
                                               MapScan(self.map_angles, SCAN_POINTS),
                                               config.acquisition, config.limits)
         self.monitor = PredictionMonitor(mprnn, config)

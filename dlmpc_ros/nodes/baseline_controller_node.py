@@ -68,17 +68,17 @@ class BaselineControllerNode(ControllerNodeBase):
             ga = GAConfig(population=v['ga_population'], generations=v['ga_generations'],
                           dwell=v['ga_dwell'], lock_objective=v['ga_lock_objective'],
                           restart_level=v['ga_restart_level'])
-            self.controller = build(
+            controller = build(
                 self.values['controller'], models_dir(self.values['models_dir']), self.limits,
                 angles=angles if angles.size == 4 else None,
                 initial_k=None if math.isnan(k0) else k0, ga_config=ga)
         except (FileNotFoundError, ValueError) as err:  # ControllerSpecError: one line
             raise params.StartupError(str(err)) from None
         self._truth: dict[int, float] = {}
-        if hasattr(self.controller, 'observe_truth'):  # the oracle (evaluation only)
+        if hasattr(controller, 'observe_truth'):  # the oracle (evaluation only)
             self.create_subscription(Float64MultiArray, itf.TOPIC_SIM_TRUTH, self._on_truth,
                                      QOS[itf.TOPIC_SIM_TRUTH])
-        self.start()
+        self.start(controller)
 
     def _on_truth(self, msg: Float64MultiArray) -> None:
         fault = itf.vector_fault(msg.data, itf.SIM_TRUTH_FIELDS, 1e300)

@@ -131,12 +131,12 @@ class MPCControllerNode(ControllerNodeBase):
         import torch
         torch.set_num_threads(1)  # small models: threads only contend with the other nodes
         try:
-            self.controller = load_dlmpc(models_dir(self.values['models_dir']), config)
+            controller = load_dlmpc(models_dir(self.values['models_dir']), config)
         except (ModelFileError, FileNotFoundError) as err:
             raise params.StartupError(str(err)) from None
-        if hasattr(self.controller, 'warm_up'):  # the paper's MP-RNN plans
-            self.controller.warm_up()
-        self.start()
+        if hasattr(controller, 'warm_up'):  # the paper's MP-RNN plans
+            controller.warm_up()
+        self.start(controller)
 
     def fresh_controller(self, controller: DLMPCController | PaperDLMPC
                          ) -> DLMPCController | PaperDLMPC:

@@ -25,7 +25,8 @@ from dlmpc_ros.ros.io import QOS
 
 
 class ControllerNodeBase(Node):
-    """Subclasses set ``self.controller`` and call :meth:`start` at the end of __init__."""
+    """Subclasses build their controller and call :meth:`start` with it at the end of
+    __init__; from then on the decision loop holds it (:attr:`loop`)."""
 
     uses_estimator = False  # set by start(): whether the controller reads the surrogate
 
@@ -38,20 +39,19 @@ class ControllerNodeBase(Node):
                                      {**COMMON_RANGES, **(ranges or {})})
         self.limits = limits_from(self.values)
         self._periods = period_measurement_from(self.values)
-        self.controller: Controller | None = None
         self.loop: DecisionLoop | None = None
         self._warn = itf.RateLimitedLog(self.get_logger().warning)
         self._drops = CounterWindow()
 
-    def start(self) -> None:
+    def start(self, controller: Controller) -> None:
         # a controller that reads the VAE's surrogate (the paper's loops) waits for it
-        self.uses_estimator = bool(getattr(self.controller, 'uses_estimator', False))
+        self.uses_estimator = bool(getattr(controller, 'uses_estimator', False))
         publishers = Publishers(*(
             self.create_publisher(Float64MultiArray, topic, QOS[topic])
             for topic in (itf.TOPIC_ANGLES_CMD, itf.TOPIC_CONTROLLER_STATUS,
                           itf.TOPIC_MEASUREMENT)))
         self.loop = DecisionLoop(
-            self.controller, self.limits, self._periods, publishers, self._warn,
+            controller, self.limits, self._periods, publishers, self._warn,
             now=lambda: self.get_clock().now().nanoseconds * 1e-9,
             inbox=EstimateInbox(self._warn) if self.uses_estimator else None,
             estimator_timeout=self.values['estimator_timeout'],
