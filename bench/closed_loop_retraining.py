@@ -67,7 +67,7 @@ def rotation_pairs(directory: Path) -> dict[str, np.ndarray]:
 def main(argv: list[str] | None = None) -> int:
     from dlmpc_ros.learning.checkpoint import save_checkpoint
     from dlmpc_ros.learning.curve import FILE_NAME, load_curve
-    from dlmpc_ros.learning.response import load_response
+    from dlmpc_ros.learning.response_file import load_response
     from dlmpc_ros.training.adapt import AdaptConfig, fine_tune, laser_pairs, prediction_rmse
     from dlmpc_ros.training.closed_loop import ClosedLoopConfig, closed_loop_runs
     from dlmpc_ros.training.stages.response import FitSettings, fit_ensemble, joined_pairs

@@ -87,7 +87,7 @@ def load_dlmpc(models_dir: Path, config: DLMPCConfig | None = None
         raise ModelFileError(str(err)) from None
     response = None
     if config.planner is not None:
-        from dlmpc_ros.learning.response import load_response
+        from dlmpc_ros.learning.response_file import load_response
         response, _ = load_response(Path(models_dir) / 'response.pt')
     return DLMPCController(config, float(target), curve, response, prior, correction)
 

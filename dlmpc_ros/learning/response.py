@@ -15,48 +15,20 @@ parameters.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 from torch import nn
 
-from dlmpc_ros.core import checks
-from dlmpc_ros.learning.checkpoint import load_model
 from dlmpc_ros.learning.seeding import reset_linear_layers
+
+if TYPE_CHECKING:  # its file's settings
+    from dlmpc_ros.learning.response_file import ResponseModelConfig
 
 #: The predictor's inputs, in order: curve parameter (K units), rotation [rad], log E,
 #: log M, the further turn [rad].
 FEATURES = ('u', 'theta', 'log_E', 'log_M', 'delta')
-#: Lowest predicted log-ratio: a turn that loses the pulse (O falls to a tenth or less).
-LOST = float(np.log(0.1))
-
-
-@dataclass(frozen=True)
-class ResponseModelConfig:
-    """Sizes and input scaling of the predictor (stored in its file)."""
-
-    members: int = 5
-    """Networks in the ensemble."""
-    hidden: int = 64
-    """Units of every hidden layer."""
-    layers: int = 3
-    """Linear layers per network (tanh between them)."""
-    mean: list = field(default_factory=lambda: [0.0] * len(FEATURES))
-    """Mean of each input on the training data."""
-    std: list = field(default_factory=lambda: [1.0] * len(FEATURES))
-    """Standard deviation of each input on the training data (> 0)."""
-
-    def __post_init__(self) -> None:
-        checks.counts(self, 'members', 'hidden', 'layers')
-        if len(self.mean) != len(FEATURES) or len(self.std) != len(FEATURES) \
-                or not all(np.isfinite(self.mean)) or not all(s > 0 for s in self.std):
-            raise ValueError(f'ResponseModelConfig needs {len(FEATURES)} finite means and '
-                             'positive standard deviations')
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 class ResponseEnsemble(nn.Module):
@@ -98,9 +70,3 @@ def _network(config: ResponseModelConfig) -> nn.Sequential:
         blocks += [nn.Linear(a, b), nn.Tanh()]
     return nn.Sequential(*blocks, nn.Linear(sizes[-1], 1))
 
-
-def load_response(path: str | Path) -> tuple[ResponseEnsemble, dict]:
-    """The steady-response predictor and its file's payload; raises
-    :class:`~dlmpc_ros.learning.checkpoint.ModelFileError`."""
-    return load_model(path, 'response',
-                      lambda config: ResponseEnsemble(ResponseModelConfig(**config)))

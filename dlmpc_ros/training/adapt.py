@@ -60,12 +60,14 @@ from dlmpc_ros.core import checks
 from dlmpc_ros.learning.checkpoint import save_checkpoint
 from dlmpc_ros.learning.curve import FILE_NAME, load_curve, locate
 from dlmpc_ros.learning.fit import fit
-from dlmpc_ros.learning.response import LOST, ResponseEnsemble, load_response
+from dlmpc_ros.learning.response import ResponseEnsemble
+from dlmpc_ros.learning.response_file import load_response
 from dlmpc_ros.learning.rotation_prior import save_rotation_prior
 from dlmpc_ros.learning.turn_correction import FILE_NAME as CORRECTION_FILE
 from dlmpc_ros.learning.turn_correction import save_turn_correction
 from dlmpc_ros.recording.reader import read_bag
 from dlmpc_ros.training.adapt_estimator import EstimatorAdaptConfig, calibrate_estimator
+from dlmpc_ros.training.response import LOST
 
 
 @dataclass(frozen=True)

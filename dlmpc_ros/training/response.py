@@ -37,6 +37,9 @@ from dlmpc_ros.training import shards
 
 #: Columns of the data, in order.
 COLUMNS = ('plant', 'K', 'u', 'theta', 'E', 'M')
+#: Lowest log-ratio of O the predictor is trained to predict: a turn that loses the pulse (O
+#: falls to a tenth or less).
+LOST = float(np.log(0.1))
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,8 @@ from dlmpc_ros.control.dlmpc_config import PlannerConfig, TrackingConfig
 from dlmpc_ros.control.rotation_planner import CurveRotation, OnlineCorrection, RotationPlanner
 from dlmpc_ros.control.tracking import CurveTracker
 from dlmpc_ros.learning.fit import fit
-from dlmpc_ros.learning.response import ResponseEnsemble, ResponseModelConfig
+from dlmpc_ros.learning.response import ResponseEnsemble
+from dlmpc_ros.learning.response_file import ResponseModelConfig
 
 from test.control.toy_curve import ANGLES, GRID
 

@@ -8,7 +8,7 @@ import torch
 
 from dlmpc_ros.learning.curve import load_curve, locate
 from dlmpc_ros.paths import models_dir
-from dlmpc_ros.learning.response import load_response
+from dlmpc_ros.learning.response_file import load_response
 from dlmpc_ros.learning.turn_correction import load_turn_correction, save_turn_correction
 from dlmpc_ros.training.adapt import (AdaptConfig, fine_tune, laser_pairs, prediction_rmse,
                                       rotation_prior, split_periods, turn_correction)

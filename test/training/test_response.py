@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from dlmpc_ros.learning.curve import load_curve
-from dlmpc_ros.learning.response import LOST
 from dlmpc_ros.paths import models_dir
-from dlmpc_ros.training.response import COLUMNS, ResponseConfig, ResponseTask, response_rows
+from dlmpc_ros.training.response import (COLUMNS, LOST, ResponseConfig, ResponseTask,
+                                        response_rows)
 from dlmpc_ros.training.stages.response import PairRule, profile_pairs, profiles
 
 

@@ -6,7 +6,7 @@ Training pairs: along each rotation profile (one plant, K and curve point, the r
 stepped both ways from 0), every state that holds a pulse (O at least ``pulse_fraction``
 of the profile's best) and every other rotation within ``trust`` of it give the inputs
 ``(u, theta_a, log E_a, log M_a, theta_b - theta_a)`` and the target ``log(O_b / O_a)``,
-or :data:`~dlmpc_ros.learning.response.LOST` where the pulse is lost on the way. Each
+or :data:`~dlmpc_ros.training.response.LOST` where the pulse is lost on the way. Each
 member of the ensemble is fit to its own bootstrap sample of the training plants' pairs;
 a fifth of the plants are held out, and the figures are measured on them: the RMSE, and
 what one-step plans chosen by the predictor (mean minus ``spread_penalty`` times the
@@ -25,12 +25,12 @@ from dlmpc_ros.core import checks
 from dlmpc_ros.learning.checkpoint import save_checkpoint
 from dlmpc_ros.learning.curve import FILE_NAME, load_curve
 from dlmpc_ros.learning.fit import fit
-from dlmpc_ros.learning.response import (FEATURES, LOST, ResponseEnsemble,
-                                         ResponseModelConfig)
+from dlmpc_ros.learning.response import FEATURES, ResponseEnsemble
+from dlmpc_ros.learning.response_file import ResponseModelConfig
 from dlmpc_ros.training import shards
 from dlmpc_ros.training.adapt import AdaptConfig, laser_pairs, prediction_rmse
 from dlmpc_ros.training.closed_loop import ClosedLoopConfig, closed_loop_runs
-from dlmpc_ros.training.response import ResponseConfig, generate_response
+from dlmpc_ros.training.response import LOST, ResponseConfig, generate_response
 from dlmpc_ros.training.workspace import Workspace
 
 
