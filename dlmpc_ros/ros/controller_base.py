@@ -7,8 +7,11 @@ the commands and warns when decisions had to be made before the servos settled.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from std_msgs.msg import Float64MultiArray
 
 from dlmpc_ros import interfaces as itf
@@ -18,10 +21,18 @@ from dlmpc_ros.ros import params
 from dlmpc_ros.ros.controller_params import (COMMON_DEFAULTS, COMMON_DESCRIPTIONS,
                                              COMMON_RANGES, limits_from,
                                              period_measurement_from)
-from dlmpc_ros.ros.decision_loop import DecisionLoop, Publishers
+from dlmpc_ros.ros.decision_loop import DecisionLoop
 from dlmpc_ros.ros.diagnostics import DiagnosticsPublisher
 from dlmpc_ros.ros.estimates import EstimateInbox, subscribe_when_heard
 from dlmpc_ros.ros.io import QOS
+
+
+class Publishers(NamedTuple):
+    """Where a decision goes: /laser/angles_cmd, /controller/status, /controller/measurement."""
+
+    command: Publisher
+    status: Publisher
+    measurement: Publisher
 
 
 class ControllerNodeBase(Node):

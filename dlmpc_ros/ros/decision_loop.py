@@ -19,10 +19,9 @@ import math
 import time
 from collections import deque
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import TYPE_CHECKING
 
 import numpy as np
-from rclpy.publisher import Publisher
 from std_msgs.msg import Float64MultiArray
 
 from dlmpc_ros import interfaces as itf
@@ -31,16 +30,11 @@ from dlmpc_ros.health import SettleWatch
 from dlmpc_ros.ros.estimates import EstimateInbox
 from dlmpc_ros.ros.io import vector_message
 
+if TYPE_CHECKING:  # made by the node at start
+    from dlmpc_ros.ros.controller_base import Publishers
+
 #: Latest decisions whose modes /diagnostics sums up.
 RECENT_DECISIONS = 1000
-
-
-class Publishers(NamedTuple):
-    """Where a decision goes: /laser/angles_cmd, /controller/status, /controller/measurement."""
-
-    command: Publisher
-    status: Publisher
-    measurement: Publisher
 
 
 class DecisionLoop:

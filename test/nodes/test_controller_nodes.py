@@ -287,7 +287,8 @@ class _NotFiniteFirst:
 
 def test_the_decision_loop_never_sends_a_non_finite_command_and_starts_the_controller_afresh(
         probe):
-    from dlmpc_ros.ros.decision_loop import DecisionLoop, Publishers
+    from dlmpc_ros.ros.controller_base import Publishers
+    from dlmpc_ros.ros.decision_loop import DecisionLoop
     commands = probe.listen(itf.TOPIC_ANGLES_CMD)
     measurements = probe.listen(itf.TOPIC_MEASUREMENT)
     warnings, replaced = [], []
