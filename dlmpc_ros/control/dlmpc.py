@@ -2,11 +2,9 @@
 acquisition.
 
 Each control period the :class:`Supervisor` takes the period's measurement
-``(E, M, alpha[4])`` (:class:`~dlmpc_ros.control.step.PeriodMeasurement`), asks its modes in
-priority order (each with one verb: ``decide(period)`` returns a
-:class:`~dlmpc_ros.control.step.Decision` or None to pass; the modes after the one that decides
-``stand_down``), and the first that decides sets the next angles (within the servo limits).
-The :class:`DLMPCController`'s modes:
+``(E, M, alpha[4])`` (:class:`~dlmpc_ros.control.step.PeriodMeasurement`) and asks its modes
+(:class:`~dlmpc_ros.control.step.Mode`) in priority order; the first that decides sets the
+next angles (within the servo limits). The :class:`DLMPCController`'s modes:
 
 1. ``acquire``: while O says the laser is off its pulse, scan the tracking curve and its
    twin for a lock (:class:`LockSupervisor` over a :class:`CurveScan`);
@@ -17,15 +15,6 @@ The :class:`DLMPCController`'s modes:
 
 The paper's loops (``strategy:=paper``: MP-RNN plans, the VAE's surrogate through the map)
 are the same supervisor with other modes (:mod:`~dlmpc_ros.control.paper_loops`).
-
-Lock acquisition: off a pulse the measurement says little about K. The laser is locked while
-O = E/M is at the lock threshold and at ``RELOCK_FRACTION`` of its own recent best (decaying by
-``LEVEL_DECAY`` per period). After ``patience`` unlocked periods (``relock_patience`` once
-locked) the supervisor scans the points of a :class:`ScanSource` until O locks, then hands
-back to the modes, told where (:attr:`LockSupervisor.locked_at`). Where a point's field has
-died, the scan seeds it: it turns the half-wave plate on through its period at the servos'
-speed; a strong CW field builds on the way and forms a pulse back at the point's setting (an
-NPR laser started by hand; ``bench/results/scan_sweep.md``).
 """
 
 from __future__ import annotations
@@ -247,9 +236,16 @@ class ScanSource(Protocol):
 class LockSupervisor:
     """Per period: None while the DL-MPC loops are in charge, else the scan's angles (4,) [rad].
 
+    Off a pulse the measurement says little about K. After ``patience`` unlocked periods
+    (``relock_patience`` once locked, :meth:`locked`) it scans the points of a
+    :class:`ScanSource` until O locks, then hands back to the modes, told where
+    (:attr:`locked_at`: the scan's point in the period O locked, else None). Where a point's
+    field has died, it seeds it: it turns the half-wave plate on through its period at the
+    servos' speed; a strong CW field builds on the way and forms a pulse back at the point's
+    setting (an NPR laser started by hand; ``bench/results/scan_sweep.md``).
+
     ``threshold``: O (E/M units) at and above which the laser is locked; ``limits``: the
-    servos' :class:`AngleLimits` (None: no ``TURN_ROOM`` kept). :attr:`locked_at`: the
-    scan's point in the period O locked (else None)."""
+    servos' :class:`AngleLimits` (None: no ``TURN_ROOM`` kept)."""
 
     def __init__(self, threshold: float, source: ScanSource,
                  config: AcquisitionConfig | None = None,
@@ -275,7 +271,8 @@ class LockSupervisor:
         self.travelling = False
 
     def locked(self, objective: float) -> bool:
-        """Whether O is at the lock threshold and at ``RELOCK_FRACTION`` of the level."""
+        """Whether O = E/M is at the lock threshold and at ``RELOCK_FRACTION`` of the level
+        (the laser's own recent best, decaying by ``LEVEL_DECAY`` per period)."""
         threshold = max(self.threshold, RELOCK_FRACTION * self.level)
         return bool(np.isfinite(objective) and objective >= threshold)
 
@@ -357,10 +354,9 @@ class LockSupervisor:
 
 
 class CurveScan:
-    """The acquisition scan over the tracking curve (a
-    :class:`ScanSource`): for each parameter ``u`` of
-    ``points``, the curve's point and its mirror twin (estimate ``-u``), the one nearer
-    the current angles first. The tracker enters where the scan locks."""
+    """The acquisition scan over the tracking curve (a :class:`ScanSource`): for each
+    parameter ``u`` of ``points``, the curve's point and its mirror twin (estimate ``-u``),
+    the one nearer the current angles first. The tracker enters where the scan locks."""
 
     def __init__(self, tracker: CurveTracker, points: tuple[float, ...]) -> None:
         self.tracker = tracker

@@ -144,8 +144,7 @@ class CurveRotation:
     """theta(u) [rad]: a learned turn of all four angles along the curve.
 
     ``low`` < ``high`` bound the curve parameter (K units), ``knots`` >= 2 points carry
-    the values, ``limit`` [rad] bounds |theta|, ``spread`` (0: off) is :meth:`move`'s prior.
-    """
+    the values, ``limit`` [rad] bounds |theta|, ``spread`` (0: off) is :meth:`move`'s prior."""
 
     def __init__(self, low: float, high: float, knots: int, limit: float,
                  spread: float = 0.0) -> None:

@@ -3,14 +3,6 @@
 step it returns (:class:`ControlStep`, the :class:`Controller` protocol); and what the DL-MPC's
 modes (:mod:`~dlmpc_ros.control.dlmpc`) take and return in one (:class:`Period`,
 :class:`Decision`, :class:`Mode`).
-
-A decision falls at most once per P round trips, on states *settled* at its command (every
-angle within ``tolerance``): the mean E and M of the settled states among the latest n round
-trips, with their median angles (n: ``bench/results/measurement_round_trips.md``). It is due
-once they have been settled for min(n, P) round trips (1 after ``measure=False``), or after
-``timeout`` round trips regardless (:attr:`PeriodMeasurement.settled` says which). Without a
-known command (before the first, after ``command(None)``) the latest state's angles count as
-reached.
 """
 
 from __future__ import annotations
@@ -131,8 +123,7 @@ class AngleLimits:
     """Range of every angle [rad] and the largest change per control period [rad].
 
     Angles are pi-periodic: a wanted angle becomes its equivalent in ``[low, high]`` (which
-    should span >= pi) nearest the current one, reached by at most ``max_step`` per period.
-    """
+    should span >= pi) nearest the current one, reached by at most ``max_step`` per period."""
 
     low: float = -2 * math.pi
     """Lowest angle a servo may be sent to [rad] (two turns: room for branch turns)."""
@@ -149,8 +140,7 @@ class AngleLimits:
             raise ValueError(f'max_step must be > 0 rad, got {self.max_step}')
 
     def apply(self, current: np.ndarray, wanted: np.ndarray) -> np.ndarray:
-        """The angles (4,) [rad] to command, from the current (4,) and the wanted (4,) ones:
-        toward the pi-equivalent of ``wanted`` in range nearest ``current``, by <= ``max_step``."""
+        """The angles (4,) [rad] to command, from the current (4,) and the wanted (4,) ones."""
         current = np.clip(np.asarray(current, float), self.low, self.high)
         wanted = np.asarray(wanted, float)
         goal = wanted + math.pi * np.round((current - wanted) / math.pi)  # nearest of all
@@ -186,10 +176,14 @@ def period_measurement(states: np.ndarray) -> np.ndarray:
 class PeriodMeasurement:
     """Collects the round trips' states and says when a decision is due, with its measurement.
 
-    ``period``: P [round trips], the least time between decisions; ``round_trips``: n >= 1
-    averaged (an unreported one leaves a gap); ``tolerance`` >= 0 [rad]: of a settled state;
-    ``timeout`` >= 1: round trips to a decision even if unsettled (never before P).
-    """
+    A decision falls at most once per ``period`` P round trips, on states *settled* at its
+    command (every angle within ``tolerance`` >= 0 [rad]): the mean E and M of the settled
+    states among the latest ``round_trips`` n >= 1 (an unreported one leaves a gap), with
+    their median angles (n: ``bench/results/measurement_round_trips.md``). It is due once they
+    have been settled for min(n, P) round trips (1 after ``measure=False``), or after
+    ``timeout`` >= 1 round trips regardless (:attr:`settled` says which). Without a known
+    command (before the first, after ``command(None)``) the latest state's angles count as
+    reached."""
 
     def __init__(self, period: int, round_trips: int = MEASUREMENT_ROUND_TRIPS,
                  tolerance: float = SETTLE_TOLERANCE, timeout: int = SETTLE_TIMEOUT) -> None:

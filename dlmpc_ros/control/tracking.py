@@ -71,8 +71,7 @@ class CurveTracker:
     ``grid`` (n,) increasing curve parameters, ``angles`` (n, 4) [rad] the curve, continuous
     along it; ``threshold`` the O at which the laser counts as locked; ``expected`` (n,)
     the curve's steady O (None: the entry trial always runs); ``limits`` the servo limits
-    a branch turn stays inside; ``planner`` turns the curve (None: never).
-    """
+    a branch turn stays inside; ``planner`` turns the curve (None: never)."""
 
     def __init__(self, grid: np.ndarray, angles: np.ndarray, threshold: float,
                  config: TrackingConfig | None = None, expected: np.ndarray | None = None,
@@ -399,10 +398,7 @@ class TurnEvent(Enum):
 
 
 class TurnPhase(Enum):
-    """Where a turn is. Transitions (:meth:`BranchTurn.step`): IDLE -> GO (begin);
-    GO -> VERIFY (arrived), GO -> LOST (O under the turn guard on the way); VERIFY ->
-    IDLE (kept), VERIFY -> BACK (no better), VERIFY -> LANDED (O under the turn guard
-    where it landed); BACK, LOST, LANDED -> IDLE once back; any -> IDLE (cancel)."""
+    """Where a turn is (:meth:`BranchTurn.step`; its transitions: docs/architecture.md)."""
 
     IDLE = ''
     GO = 'go'          # turning toward the other branch
@@ -479,8 +475,8 @@ class BranchTurn:
 
     def begin(self, current: np.ndarray, u: float, objective: float) -> bool:
         """Start a turn from ``current`` (4,) [rad] at curve point ``u`` to :attr:`landing`
-        (``-|u|``), ``objective`` the O before it; False (and a cooldown) if no way round
-        fits the limits. Tries first :attr:`direction` (within ``FREE_TURN``: toward mid-range)."""
+        (``-|u|``), ``objective`` the O before it; False (and a cooldown) if no way round fits
+        the limits."""
         start = self.on_curve(u)
         self.landing = -abs(u)
         fractions = (np.arange(TURN_PERIODS) + 1) / TURN_PERIODS

@@ -1,16 +1,14 @@
 """The DL-MPC's steady-response predictor: what turning the tracking curve does to O.
 
-On a laser that is not the nominal cavity the best angles are mostly the tracking curve
-turned by an angle theta (:mod:`dlmpc_ros.control.rotation_planner`), and which way and how far
-shows in what the laser measures. The predictor reads, at the curve point ``u`` the
-tracker is at, the rotation ``theta`` it runs with and the measured ``E`` and ``M``, and
-predicts the change of log O a further turn ``delta`` would bring once the laser has
-settled: a predictor of the steady response, not of every period. It is an ensemble of
-small networks trained on bootstrap samples; their spread says where a plan leaves the
-data (the planner, :mod:`dlmpc_ros.control.rotation_planner`, penalizes it). It is
-trained on plants drawn from the family (domain randomization) by ``dlmpc-train
-response`` (:mod:`dlmpc_ros.training.stages.response`) and never reads K or a plant's
-parameters.
+Which way and how far to turn the curve (:mod:`dlmpc_ros.control.rotation_planner`) shows in
+what the laser measures. The predictor reads, at the curve point ``u`` the tracker is at, the
+rotation ``theta`` it runs with and the measured ``E`` and ``M``, and predicts the change of
+log O a further turn ``delta`` would bring once the laser has settled: the steady response,
+not every period's. It is an ensemble of small networks trained on bootstrap samples; their
+spread says where a plan leaves the data (the planner penalizes it). ``dlmpc-train
+response`` (:mod:`dlmpc_ros.training.stages.response`) trains it on plants drawn from the
+family (domain randomization); it never reads K or a plant's parameters. Its file:
+:mod:`dlmpc_ros.learning.response_file`.
 """
 
 from __future__ import annotations

@@ -1,16 +1,13 @@
 """A controller node's control period, from the /laser/state callback to the published command.
 
-Each usable state goes to the period's measurement
-(:class:`~dlmpc_ros.control.step.PeriodMeasurement`: a decision is due ``period`` round trips
-after the last, once the servos have settled at the last command for the round trips a
-measurement averages, or ``settle_timeout`` round trips regardless). The measurement is
-published on /controller/measurement (what the estimator reads), the controller steps, and
-the angles go out on /laser/angles_cmd, the decision on /controller/status. A controller that
-reads the estimator's surrogate (the paper's loops) acts once the estimate of the same round
-trip is in (:class:`~dlmpc_ros.ros.estimates.EstimateInbox`), or ``estimator_timeout`` s
-without it; a decision is never skipped (the controller's histories assume one row per
-decision). A non-finite command is never sent: the angles hold and the controller starts
-afresh.
+Each usable state goes to the period's measurement, which says when a decision is due
+(:class:`~dlmpc_ros.control.step.PeriodMeasurement`). The measurement is published on
+/controller/measurement (what the estimator reads), the controller steps, and the angles go
+out on /laser/angles_cmd, the decision on /controller/status. A controller that reads the
+estimator's surrogate (the paper's loops) acts once the estimate of the same round trip is in
+(:class:`~dlmpc_ros.ros.estimates.EstimateInbox`), or ``estimator_timeout`` s without it; a
+decision is never skipped (the controller's histories assume one row per decision). A
+non-finite command is never sent: the angles hold and the controller starts afresh.
 """
 
 from __future__ import annotations
@@ -42,8 +39,7 @@ class DecisionLoop:
     ``publishers`` send it; ``now()``: the node's clock [s]; ``inbox``: the estimator's
     surrogates (None: the controller reads none), awaited ``estimator_timeout`` s;
     ``before_step(controller, state)`` runs before each step (the oracle reads its K there);
-    ``fresh(controller)``: the controller to go on with after a non-finite command (default:
-    the same)."""
+    ``fresh(controller)``: the controller after a non-finite command (default: the same)."""
 
     def __init__(self, controller: Controller, limits: AngleLimits, periods: PeriodMeasurement,
                  publishers: Publishers, warn: itf.RateLimitedLog, now: Callable[[], float],
