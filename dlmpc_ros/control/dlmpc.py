@@ -65,7 +65,7 @@ class Supervisor:
         """Measurement (6,) and the estimator's surrogate for it -> next period's angles."""
         started = time.perf_counter()
         measurement = np.asarray(measurement, float)
-        if implausible(measurement) is not None:  # hold; the models never see it
+        if implausible(measurement):  # hold; the models never see it
             current = np.nan_to_num(measurement[2:6], nan=0.0)
             return ControlStep(angles=self.config.limits.apply(current, current), mode='hold',
                                latency_ms=1e3 * (time.perf_counter() - started))

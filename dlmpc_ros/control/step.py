@@ -55,18 +55,13 @@ M_RANGE = (1.0, 1e5)
 ANGLE_BOUND = 1e3
 
 
-def implausible(measurement: np.ndarray) -> str | None:
-    """Why a measurement ``(E, M, alpha1..alpha_p)`` is no laser's, or None."""
+def implausible(measurement: np.ndarray) -> bool:
+    """Whether a measurement ``(E, M, alpha1..alpha_p)`` is no laser's: a value not finite, E
+    or M outside its range, or an angle beyond ``ANGLE_BOUND``."""
     e, m = float(measurement[0]), float(measurement[1])
-    if not np.isfinite(measurement).all():
-        return 'a value is not finite'
-    if not E_RANGE[0] <= e <= E_RANGE[1]:
-        return f'E = {e:g} is outside [{E_RANGE[0]:g}, {E_RANGE[1]:g}]'
-    if not M_RANGE[0] <= m <= M_RANGE[1]:
-        return f'M = {m:g} is outside [{M_RANGE[0]:g}, {M_RANGE[1]:g}]'
-    if np.abs(measurement[2:6]).max() > ANGLE_BOUND:
-        return f'an angle exceeds {ANGLE_BOUND:g} rad'
-    return None
+    return bool(not np.isfinite(measurement).all() or not E_RANGE[0] <= e <= E_RANGE[1]
+                or not M_RANGE[0] <= m <= M_RANGE[1]
+                or np.abs(measurement[2:6]).max() > ANGLE_BOUND)
 
 
 class Controller(Protocol):
