@@ -56,12 +56,19 @@ TRIAL_BLOCKS = 2
 
 
 class TrackerState(Enum):
-    """What the tracker does in a period (:attr:`CurveTracker.state`); its transitions, each
-    with its cause: docs/architecture.md."""
+    """What the tracker does in a period (:attr:`CurveTracker.state`); its transitions:
+    :data:`TRACKER_TRANSITIONS`, each with its cause in docs/architecture.md."""
 
     IDLE = 'idle'      # not tracking: waiting for a lock and the cooldown
     DITHER = 'dither'  # on the curve, dithering the estimate (and planning turns)
     TURN = 'turn'      # changing branch (BranchTurn)
+
+
+#: The tracker's changes of state from one period to the next (:class:`TrackerState`).
+TRACKER_TRANSITIONS = frozenset({
+    (TrackerState.IDLE, TrackerState.DITHER), (TrackerState.DITHER, TrackerState.TURN),
+    (TrackerState.TURN, TrackerState.DITHER), (TrackerState.DITHER, TrackerState.IDLE),
+    (TrackerState.TURN, TrackerState.IDLE)})
 
 
 class CurveTracker:

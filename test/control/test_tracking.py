@@ -9,20 +9,14 @@ from dlmpc_ros.control.dlmpc import DLMPCController
 from dlmpc_ros.control.dlmpc_config import DLMPCConfig, TrackingConfig
 from dlmpc_ros.control.step import AngleLimits
 from dlmpc_ros.control import tracking
-from dlmpc_ros.control.tracking import (COOLDOWN, TURN_PERIODS, CurveTracker, TrackerState,
-                                       TurnEvent)
+from dlmpc_ros.control.tracking import (COOLDOWN, TRACKER_TRANSITIONS, TURN_PERIODS, CurveTracker,
+                                       TrackerState, TurnEvent)
 from dlmpc_ros.core.symmetry import QUARTER_TURN
 
 from test.control.toy_curve import ANGLES, GRID
 
 #: ``entry_trial_after`` that never comes: tests of other turns leave the entry trial out
 NEVER = 1_000_000  # the largest the setting takes
-#: The tracker's changes of state from one period to the next (:class:`TrackerState`), as
-#: docs/architecture.md gives them.
-TRACKER_TRANSITIONS = frozenset({
-    (TrackerState.IDLE, TrackerState.DITHER), (TrackerState.DITHER, TrackerState.TURN),
-    (TrackerState.TURN, TrackerState.DITHER), (TrackerState.DITHER, TrackerState.IDLE),
-    (TrackerState.TURN, TrackerState.IDLE)})
 
 
 
