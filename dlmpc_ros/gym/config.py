@@ -61,7 +61,7 @@ class LaserEnvConfig:
     """P: round trips per control period, i.e. per env step."""
     measurement_round_trips: int = MEASUREMENT_ROUND_TRIPS
     """n: the observation's E and M are the mean of the period's last min(n, P) round
-    trips (``control/period_measurement.py``)."""
+    trips (``control/step.py``, ``PeriodMeasurement``)."""
     episode_periods: int = 200
     """Env steps of an episode (then ``truncated``; an episode never terminates)."""
     window: int = 1

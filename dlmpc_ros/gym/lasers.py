@@ -14,7 +14,7 @@ servos: the command from the period's first round trip on); the detectors and en
 read every round trip (``core/bench.py``'s noise, resolution, ceiling and spectrum
 refresh, drawn per lane); the measurement is the mean E and M and the median reported
 angles of the period's last min(n, P) round trips whose angles are within the settle
-tolerance of the command (``control/period_measurement.py``), or the last reading when
+tolerance of the command (``control/step.py``, ``PeriodMeasurement``), or the last reading when
 none is (``settled`` False). A round trip whose field blows up resets that laser's field,
 as the simulator node does; a period with no finite round trip measures E = 0, M = 1.
 """
