@@ -425,7 +425,8 @@ BRANCH_GAIN = 0.005
 #: lost O, 0.25 measured nothing, ``bench/results/turn_step.md``), and the periods a turn takes.
 TURN_STEP = 0.2
 TURN_PERIODS = int(np.ceil(QUARTER_TURN / TURN_STEP - 1e-9))
-#: Periods after a turn (made or given up) before the next may start.
+#: Periods after a turn turned back or given up (or with no room) before the next may start;
+#: a kept turn leaves none (``bench/results/kept_turn_no_wait.md``).
 TURN_COOLDOWN = 100
 #: Periods on trial after a turn; the median O of their later half decides.
 VERIFY = 6
@@ -511,8 +512,9 @@ class BranchTurn:
         self._phase, self._path = phase, self._issued[-2::-1] + [self._from]
 
     def _keep(self) -> tuple[None, TurnEvent]:
-        """The new branch stays."""
-        self._phase, self.wait = TurnPhase.IDLE, TURN_COOLDOWN
+        """The new branch stays, with no wait: its best O starts afresh, so a later fall under
+        it is new evidence (K moved), not the comparison just made."""
+        self._phase, self.wait = TurnPhase.IDLE, 0
         self.made += 1
         self.lost_landing = False
         return None, KEPT

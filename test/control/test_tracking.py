@@ -250,27 +250,50 @@ def test_tracker_turns_to_the_mirror_twin_when_k_drifts_through_zero():
     assert plain.branch == 1 and np.mean(o_plain[-100:]) < 0.186
 
 
-def test_a_crossing_of_k_0_asks_for_a_turn_even_while_an_earlier_turn_cools_down():
-    """A turn made at K < 0 starts the wait between turns; K then goes through 0, and the
-    estimate's crossing asks for the turn at once instead of leaving the laser on the branch
-    for K < 0 until the wait is over."""
+def _dip_and_drift(dip_end: int, drift_start: int) -> tuple[CurveTracker, list, list, list]:
+    """A tracker at K = -0.05 on the toy; O dips by 15 % from period 150 to ``dip_end`` (a
+    branch trial), then K runs up to 0.15 from period ``drift_start``. Returns the tracker,
+    the turns begun (period, estimate, wait then), their ends (period, branch) and the branch
+    of every period."""
     cfg = TrackingConfig(entry_patience=1, settle=0, start=-0.05, entry_trial_after=NEVER)
-    drift = lambda t: -0.05 + 0.002 * min(max(t - 250, 0), 100)  # noqa: E731
+    drift = lambda t: -0.05 + 0.002 * min(max(t - drift_start, 0), 100)  # noqa: E731
     tracker = CurveTracker(GRID, ANGLES, threshold=0.1, config=cfg)
-    o, current, begun, branch = 0.2, None, [], []
+    o, current, begun, ended, branch = 0.2, None, [], [], []
     for t in range(600):
         before = tracker.state
         cmd = tracker.step(o, current)
         if before is not TrackerState.TURN and tracker.state is TrackerState.TURN:
             begun.append((t, tracker.estimate, tracker.turner.wait))
+        if before is TrackerState.TURN and tracker.state is not TrackerState.TURN:
+            ended.append((t, tracker.branch))
         branch.append(tracker.branch)
         current = tracker.limits.apply(cmd if current is None else current, cmd)
-        dip = 0.85 if 150 <= t < 165 else 1.0  # a fall of O: a branch trial at K = -0.05
+        dip = 0.85 if 150 <= t < dip_end else 1.0
         o = _mirrored_objective(current, drift(t)) * dip
-    # turns at K < 0 (the trial, and back), then one begun past 0 while their wait ran
-    assert begun[0][1] < 0 and begun[-1][1] > cfg.mirror_margin and begun[-1][2] > 0
-    assert branch[-1] == -1 and branch[330] == -1      # on the twin soon after K passed 0
+    return tracker, begun, ended, branch
+
+
+def test_a_crossing_of_k_0_asks_for_a_turn_even_while_an_earlier_turn_cools_down():
+    """A trial at K < 0 judged while O still dips finds the twin no better and goes back,
+    which starts the wait between turns; K then goes through 0, and the estimate's crossing
+    asks for the turn at once instead of leaving the laser on the branch for K < 0 until the
+    wait is over."""
+    tracker, begun, ended, branch = _dip_and_drift(dip_end=180, drift_start=170)
+    assert begun[0][1] < 0 and ended[0][1] == 1          # the trial, turned back
+    assert begun[1][1] > 0.03 and begun[1][2] > 0        # past 0 while its wait ran
+    assert branch[-1] == -1 and branch[260] == -1        # on the twin soon after K passed 0
     assert abs(tracker.estimate - 0.15) < 0.06
+
+
+def test_a_kept_turn_leaves_no_wait_the_next_evidence_turns_again_at_once():
+    """A trial at K < 0 judged after the dip keeps the twin (the O before was the dipped
+    one); the twin's estimate then says K < 0, and the turn back comes at once: a kept turn
+    starts no wait between turns (``bench/results/kept_turn_no_wait.md``)."""
+    tracker, begun, ended, branch = _dip_and_drift(dip_end=165, drift_start=250)
+    assert begun[0][1] < 0 and ended[0][1] == -1 and tracker.turner.made >= 1  # kept
+    assert begun[1][2] == 0 and begun[1][0] - ended[0][0] < 40  # the next, without a wait
+    assert ended[1][1] == 1                                     # back on the curve for K < 0
+    assert branch[-1] == -1 and abs(tracker.estimate - 0.15) < 0.06
 
 
 def test_the_guard_judges_entries_only_not_the_end_of_a_branch_turn():
