@@ -1,9 +1,10 @@
 """The DL-MPC's behaviour in a few hashes, to check that a refactoring changed nothing.
 
-Seven short fast runs (8,000 round trips each) that between them exercise every part of
+Eight short fast runs (8,000 round trips each) that between them exercise every part of
 the controller: the nominal cavity and two family plants (the issue-32 plant: pump 1.60,
 saturation energy 4.6, loss 0.115, dispersion -0.35; one near development family 5, where
-K's crossings of 0 ask for turns within the wait after one: ``turn_crossing.md``; and the
+K's crossings of 0 ask for turns within the wait after one: ``turn_crossing.md``, and its
+random walk falls after a kept turn: ``kept_turn_no_wait.md``; and the
 nominal cavity's steps, where turns wind the servos to an end: ``wound_servos.md``),
 stress-suite conditions with ideal and slow servos and 1 % detector noise (scan, entries,
 branch turns, planned turns, held angles), and ``strategy:=paper`` (the inner loop and the
@@ -43,6 +44,7 @@ CASES = (('nominal', 'dlmpc', {}, 'sin6k-ideal', 1),
          ('issue-plant', 'dlmpc', PLANT, 'steps-noise1', 1),
          ('nominal', 'dlmpc', {}, 'steps-servo3', 3),
          ('family-5-like', 'dlmpc', PLANT_5, 'sin6k-ideal', 1),
+         ('family-5-like', 'dlmpc', PLANT_5, 'walk-ideal', 1),
          ('nominal', 'dlmpc', {}, 'steps-noise1', 2),
          ('nominal', 'dlmpc_paper', {}, 'sin6k-ideal', 1))
 ROUND_TRIPS = 8000
