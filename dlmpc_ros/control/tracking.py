@@ -484,7 +484,7 @@ class BranchTurn:
     def begin(self, current: np.ndarray, u: float, objective: float) -> bool:
         """Start a turn from ``current`` (4,) [rad] at curve point ``u`` to :attr:`landing`
         (``-|u|``), ``objective`` the O before it; False (and a cooldown) if no way round fits
-        the limits."""
+        the limits. Tries first :attr:`direction` (within ``FREE_TURN``: toward mid-range)."""
         start = self.on_curve(u)
         self.landing = -abs(u)
         fractions = (np.arange(TURN_PERIODS) + 1) / TURN_PERIODS
