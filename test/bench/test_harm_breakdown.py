@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -42,3 +43,28 @@ def test_a_miss_is_split_into_scanning_opposite_side_and_the_rest(tmp_path):
     runs[0]['metrics']['oracle_ratio'] = 0.895                  # within 0.01: no miss
     (tmp_path / 'metrics.json').write_text(json.dumps({'runs': runs}))
     assert _bench_module('harm_breakdown').breakdown(tmp_path, 0.01) == []
+
+
+def test_against_the_envelope_every_run_is_split_and_the_parts_add_up(tmp_path):
+    """``--envelope``: each DL-MPC run of the chosen conditions, its lost share of the
+    nominal cavity's envelope O*(K) split into the same parts, which add up to 1 - the
+    ratio of the run's O to O*."""
+    from dlmpc_ros.learning.tables import envelope_objective, load_baselines
+    k = np.full(8, -0.2)
+    modes = [MODES.index(m) for m in ('acquire', 'track', 'plan', 'track')]
+    o = [0.0, 0.0, .1, .1, .2, .2, .15, .15]
+    for condition in ('steps-ideal', 'walk-ideal'):
+        _record(tmp_path / 'nominal' / f'{condition}-s1-dlmpc', o, k, np.array([0, 2, 4, 6]),
+                modes, [np.nan, 0.1, -0.1, -0.1])
+    runs = [{'plant': 'nominal', 'condition': c, 'seed': 1, 'controller': 'dlmpc',
+             'metrics': {'oracle_ratio': 0.5}} for c in ('steps-ideal', 'walk-ideal')]
+    (tmp_path / 'metrics.json').write_text(json.dumps({'runs': runs}))
+    (row,) = _bench_module('harm_breakdown').envelope_breakdown(tmp_path, ['steps-ideal'])
+    tables = load_baselines(Path(__file__).resolve().parents[2] / 'models' / 'oracle.npz')
+    best = envelope_objective(tables, k)
+    assert row['condition'] == 'steps-ideal'
+    assert row['scanning'] == pytest.approx(best[:2].sum() / best.sum())
+    assert row['opposite'] == pytest.approx((best[2:4].sum() - 0.2) / best.sum())
+    assert row['after_jump'] == 0.0                             # K never steps here
+    assert row['scanning'] + row['opposite'] + row['else'] == pytest.approx(
+        1 - sum(o) / best.sum())
