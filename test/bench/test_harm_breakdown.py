@@ -68,3 +68,17 @@ def test_against_the_envelope_every_run_is_split_and_the_parts_add_up(tmp_path):
     assert row['after_jump'] == 0.0                             # K never steps here
     assert row['scanning'] + row['opposite'] + row['else'] == pytest.approx(
         1 - sum(o) / best.sum())
+
+
+def test_the_round_trips_after_a_step_of_k_are_a_part_of_their_own(tmp_path):
+    """K steps from -0.2 to +0.2 at round trip 4; with ``after_jump`` 2, the O lost while
+    tracking on the right side in round trips 4-5 is counted apart, the rest as before."""
+    _record(tmp_path / 'r', [0.0] * 8, [-0.2] * 4 + [0.2] * 4, np.array([0]),
+            [MODES.index('track')], [0.1])
+    d = np.load(tmp_path / 'r' / 'record.npz')
+    lost = np.arange(1.0, 9.0)
+    parts = _bench_module('harm_breakdown')._parts(d, lost, 1.0, after_jump=2)
+    assert parts['opposite'] == pytest.approx(1 + 2 + 3 + 4)   # estimate > 0 while K < 0
+    assert parts['after_jump'] == pytest.approx(5 + 6)
+    assert parts['else'] == pytest.approx(7 + 8)
+    assert _bench_module('harm_breakdown')._parts(d, lost, 1.0)['else'] == pytest.approx(26)
