@@ -133,6 +133,17 @@ def test_a_decision_waits_until_the_reported_angles_reach_the_command(
         assert node.stop() == 0
 
 
+def _subscriptions_once_seen(probe, expected: set[str]) -> set[str]:
+    """The topics mpc_controller subscribes, once discovery has shown at least ``expected``:
+    each reader is discovered on its own, after the node's name (read at once, one was
+    missing in a CI run)."""
+    def seen() -> set[str]:
+        return {name for name, _ in probe.node.get_subscriber_names_and_types_by_node(
+            'mpc_controller', '/')}
+    probe.spin_until(lambda: seen() >= expected, 30, f'its subscriptions {sorted(expected)}')
+    return seen()
+
+
 def test_mpc_controller_acts_each_period_holds_without_estimator_and_never_reads_true_k(
         ros_env, tmp_path, probe):
     commands = probe.listen(itf.TOPIC_ANGLES_CMD)
@@ -141,9 +152,8 @@ def test_mpc_controller_acts_each_period_holds_without_estimator_and_never_reads
                       'track:=false')  # the inner loop and hold; tracking below
     try:
         probe.spin_until(lambda: 'mpc_controller' in probe.node.get_node_names(), 30, 'node')
-        topics = {name for name, _ in probe.node.get_subscriber_names_and_types_by_node(
-            'mpc_controller', '/')}
-        assert topics == {itf.TOPIC_STATE, itf.TOPIC_ESTIMATE}
+        expected = {itf.TOPIC_STATE, itf.TOPIC_ESTIMATE}
+        assert _subscriptions_once_seen(probe, expected) == expected
         # With estimates: the inner loop maps the surrogate to angles, one step at a time.
         _periods(probe, status, [10, 20, 30], commands=commands)
         rows = [list(m.data) for m in status]
@@ -184,9 +194,7 @@ def test_mpc_controller_tracks_the_curve_once_locked_and_reads_no_estimate(
                       estimates=False)
     try:
         probe.spin_until(lambda: 'mpc_controller' in probe.node.get_node_names(), 30, 'node')
-        topics = {name for name, _ in probe.node.get_subscriber_names_and_types_by_node(
-            'mpc_controller', '/')}
-        assert topics == {itf.TOPIC_STATE}
+        assert _subscriptions_once_seen(probe, {itf.TOPIC_STATE}) == {itf.TOPIC_STATE}
         # A locked laser (O = 3.2 / 18 is above the lock level): held, then tracking.
         patience = TrackingConfig().entry_patience
         _periods(probe, status, range(10, 10 * patience + 31, 10), estimate=False,
