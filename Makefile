@@ -25,8 +25,11 @@ $(STAMP): requirements.txt setup.py
 	$(PY) -m compileall -q dlmpc_ros
 	touch $(STAMP)
 
+# The suite on TEST_WORKERS processes (pytest-xdist), each test file on one of them (its
+# module fixtures made once); every worker's ROS tests use their own domains (test/domains.py).
+TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(PY) -m pytest -q --durations=15 test
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=15 test
 
 demo: $(STAMP)
 	$(VENV)/bin/bringup --controller dlmpc --lockstep --scenario sinusoidal \

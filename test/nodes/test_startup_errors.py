@@ -15,6 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from test.domains import next_domain
+
 ROOT = Path(__file__).resolve().parents[2]
 LASER = 'dlmpc_ros.nodes.laser_sim_node'
 DRIFT = 'dlmpc_ros.nodes.drift_injector_node'
@@ -153,7 +155,7 @@ def outcomes(tmp_path_factory) -> dict[str, tuple[int, str]]:
     """Run every case, AT_ONCE at a time: id -> (exit code, output)."""
     tmp = tmp_path_factory.mktemp('startup')
     (tmp / 'bad.yaml').write_text('laser_sim: {ros__parameters: {pump: [\n')
-    env = {**os.environ, 'ROS_DOMAIN_ID': str(100 + os.getpid() % 133),
+    env = {**os.environ, 'ROS_DOMAIN_ID': str(next_domain()),
            'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'ROS_LOG_DIR': str(tmp / 'ros-log')}
     pending = list(CASES)
     running: dict[str, tuple[subprocess.Popen, float]] = {}
