@@ -24,15 +24,18 @@ BASELINES = ('passive', 'fixed_best', 'esc', 'ga')
 
 
 def metrics(folders: list[Path]) -> dict[tuple[str, str, int, str], dict]:
-    """(plant, scenario, seed, controller) -> metrics of every run in ``folders``."""
+    """(plant, scenario, seed, controller) -> metrics of every run in ``folders`` (an
+    output folder's ``metrics.json`` and those of its plant folders)."""
     out = {}
     for folder in folders:
-        for plant in PLANTS:
-            path = folder / plant / 'metrics.json'
-            if path.exists():
-                for run in json.loads(path.read_text())['runs']:
-                    out[(plant, run['scenario'], run['seed'], run['controller'])] = \
-                        run['metrics']
+        for plant, path in [(None, folder / 'metrics.json'),
+                            *((p, folder / p / 'metrics.json') for p in PLANTS)]:
+            if not path.exists():
+                continue
+            data = json.loads(path.read_text())
+            for run in data['runs']:
+                where = plant or run.get('plant', data.get('plant', 'nominal'))
+                out[(where, run['scenario'], run['seed'], run['controller'])] = run['metrics']
     return out
 
 
