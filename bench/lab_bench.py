@@ -6,8 +6,9 @@ plant and drift).
         --plant-family 108 --scenario sinusoidal --scenario random_walk \\
         --seed 1 --seed 2 --seed 3 --controller dlmpc --bench lab --workers 2 --out LAB
     (the same with --controller passive --controller fixed_best, and esc ga on seed 1)
-    python bench/lab_bench.py --ideal docs/results/heldout/dlmpc-drift \\
-        docs/results/nominal-dlmpc --lab LAB --baselines LAB_BASELINES LAB_SEARCHERS
+    python bench/lab_bench.py --ideal docs/results/stress/kept-turn-no-wait/today/heldout-drift \\
+        docs/results/stress/kept-turn-no-wait/today/nominal --lab LAB \\
+        --baselines LAB_BASELINES LAB_SEARCHERS
 """
 
 from __future__ import annotations
