@@ -16,6 +16,8 @@ FIRST, COUNT = 100, 133
 def _domains() -> Iterator[int]:
     worker = int(os.environ.get('PYTEST_XDIST_WORKER', 'gw0').removeprefix('gw'))
     share = COUNT // int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1'))
+    if share < 1:
+        raise RuntimeError(f'at most {COUNT} test workers: each needs its own ROS domain ids')
     start = FIRST + worker * share
     return (start + (os.getpid() + i) % share for i in itertools.count())
 
