@@ -17,9 +17,11 @@ def test_bringup_runs_the_graph_and_records_every_round_trip(ros_env, tmp_path):
     baseline_controller node."""
     out = tmp_path / 'run.csv'
     domain = ros_env['ROS_DOMAIN_ID']
+    # 250 round trips a second: the K message's lag (tens of ms on a machine busy with
+    # another test) stays within the median of 20 round trips checked below
     proc = subprocess.run(
         [sys.executable, '-m', 'dlmpc_ros.bringup', '--controller',
-         'dlmpc_ros.examples.hill_climber:make', '--round-trips', '400', '--rate', '1000',
+         'dlmpc_ros.examples.hill_climber:make', '--round-trips', '400', '--rate', '250',
          '--scenario', 'sinusoidal', '--scenario-param', 'period=200',
          '--scenario-param', 'amplitude=0.25',
          '--domain-id', domain, '--csv', str(out), '--plot', str(tmp_path / 'run.png'),
