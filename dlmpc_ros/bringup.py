@@ -22,11 +22,9 @@ from __future__ import annotations
 import signal
 import sys
 
-#: The signals that stop the bringup.
-QUIT_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 # A Ctrl-C while the modules below load ends the bringup quietly (nothing runs yet);
 # main() takes the signals over before it starts any node.
-for _signal in QUIT_SIGNALS:
+for _signal in (signal.SIGINT, signal.SIGTERM):
     signal.signal(_signal, lambda *_: sys.exit(0))
 
 import argparse
@@ -385,17 +383,13 @@ def main(argv: list[str] | None = None) -> int:
     if dropped:
         print(f'bringup: not passing on the middleware settings {", ".join(dropped)} '
               '(the graph uses its own)', flush=True)
-    # rclpy only from here on. An exception raised by a signal inside a C extension's
-    # initialisation fails its import with a traceback (rclpy's takes a second or more),
-    # so while it loads a signal is only noted; one that came ends the bringup quietly,
-    # before any node starts.
-    noted: list[int] = []
-    for quit_signal in QUIT_SIGNALS:
-        signal.signal(quit_signal, lambda signum, _frame: noted.append(signum))
-    from dlmpc_ros.ros.monitor import run_monitor
-    from dlmpc_ros.ros.params import stop_on_signals
-    requested = stop_on_signals()  # from here a Ctrl-C stops the graph in order
-    if noted:
+    from dlmpc_ros.ros.stop_signals import stop_on_signals
+    # From here a Ctrl-C only sets a flag: raised inside rclpy's C extension, which takes a
+    # second or more to load, it failed the import with a traceback. One that comes before
+    # the graph starts ends the bringup quietly; later, it stops the graph in order.
+    requested = stop_on_signals()
+    from dlmpc_ros.ros.monitor import run_monitor  # rclpy only from here on
+    if requested.is_set():
         return 0
     graph.start()
     try:

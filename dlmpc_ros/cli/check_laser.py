@@ -35,7 +35,7 @@ from std_msgs.msg import Float64MultiArray
 from dlmpc_ros import conformance as cf
 from dlmpc_ros import interfaces as itf
 from dlmpc_ros.ros.io import DIAGNOSTICS_QOS, QOS, layout_for, vector_message
-from dlmpc_ros.ros.params import stop_on_signals
+from dlmpc_ros.ros.stop_signals import stop_on_signals
 
 NAMES = {'a': 'state stream', 'b': 'objective', 'c': 'angle commands',
          'd': 'malformed commands', 'e': 'status', 'f': 'diagnostics'}

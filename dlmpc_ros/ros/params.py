@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import os
-import signal
 import sys
-import threading
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -20,6 +18,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from dlmpc_ros.ros.stop_signals import stop_on_signals
 from dlmpc_ros.ros.teardown import TEARDOWN_GRACE, exit_after
 
 
@@ -70,18 +69,6 @@ def declare(node: Node, defaults: Mapping[str, object], descriptions: Mapping[st
 def result(problems: list[str]) -> SetParametersResult:
     """A SetParametersResult that rejects with all problems joined as the reason."""
     return SetParametersResult(successful=not problems, reason='; '.join(problems))
-
-
-def stop_on_signals() -> threading.Event:
-    """An event set by SIGINT or SIGTERM instead of raising KeyboardInterrupt.
-
-    An exception raised by a signal in the middle of rclpy's message conversion turns
-    into an unrelated RuntimeError; a flag checked between spins avoids that.
-    """
-    requested = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: requested.set())
-    return requested
 
 
 #: Longest wait of a stopping node for its readers' acknowledgements, all its publishers
