@@ -26,11 +26,14 @@ BASELINES = ('passive', 'fixed_best', 'esc', 'ga')
 
 def metrics(folders: list[Path]) -> dict[tuple[str, str, int, str], dict]:
     """(plant, scenario, seed, controller) -> metrics of every run in ``folders`` (an
-    output folder's ``metrics.json`` and those of its plant folders)."""
+    output folder's ``metrics.json``, which holds all its runs, else those of its plant
+    folders)."""
     out = {}
     for folder in folders:
-        for plant, path in [(None, folder / 'metrics.json'),
-                            *((p, folder / p / 'metrics.json') for p in PLANTS)]:
+        top = folder / 'metrics.json'
+        sources = [(None, top)] if top.exists() else [
+            (p, folder / p / 'metrics.json') for p in PLANTS]
+        for plant, path in sources:
             if not path.exists():
                 continue
             data = json.loads(path.read_text())
