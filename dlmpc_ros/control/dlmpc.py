@@ -1,20 +1,9 @@
-"""The DL-MPC controller (paper section 3D): a supervisor over its modes, and its lock
-acquisition.
-
-Each control period the :class:`Supervisor` takes the period's measurement
-``(E, M, alpha[4])`` (:class:`~dlmpc_ros.control.step.PeriodMeasurement`) and asks its modes
-(:class:`~dlmpc_ros.control.step.Mode`) in priority order; the first that decides sets the
-next angles (within the servo limits). The :class:`DLMPCController`'s modes:
-
-1. ``acquire``: while O says the laser is off its pulse, scan the tracking curve and its
-   twin for a lock (:class:`LockSupervisor` over a :class:`CurveScan`);
-2. ``track``: once locked, follow K along the learned curve by the measured O
-   (:mod:`~dlmpc_ros.control.tracking`), turning the curve where the steady-response
-   predictor expects more O (``plan``, :mod:`~dlmpc_ros.control.rotation_planner`);
-3. ``hold``: keep the angles whenever the tracker is not in charge.
-
-The paper's loops (``strategy:=paper``: MP-RNN plans, the VAE's surrogate through the map)
-are the same supervisor with other modes (:mod:`~dlmpc_ros.control.paper_loops`).
+"""The DL-MPC controller (paper section 3D): a :class:`Supervisor` asks its modes
+(:class:`~dlmpc_ros.control.step.Mode`) in priority order each control period, and the first
+that decides sets the next angles. The default strategy (:class:`DLMPCController`): acquire
+(scan the curve and its twin for a lock, :class:`LockSupervisor`), track (follow K along the
+curve, turning it where the predictor expects more O, :mod:`~dlmpc_ros.control.tracking`),
+hold. The paper's loops are the same supervisor with other modes (``paper_loops``).
 """
 
 from __future__ import annotations
@@ -43,9 +32,8 @@ SURROGATE_LIMIT = 1e3
 
 
 class Supervisor:
-    """Modes in priority order (:attr:`modes`), one :meth:`step` per control period. A
-    subclass sets the modes and may read each plausible measurement before they decide
-    (:meth:`observe`) and the decision after (:meth:`decided`)."""
+    """Modes in priority order (:attr:`modes`), one :meth:`step` per control period; a
+    subclass may read each plausible measurement first (:meth:`observe`), the decision after."""
 
     name = 'dlmpc'
     #: Whether the harnesses and the node give it the VAE's surrogate (the paper's loops).
@@ -82,9 +70,8 @@ class Supervisor:
         self.decided(decision)
         reported = period.surrogate if decision.surrogate is None else decision.surrogate
         return ControlStep(angles=angles, mode=decision.mode, surrogate=reported,
-                           prediction_error=error,
+                           prediction_error=error, iterations=decision.iterations,
                            predicted_objective=decision.predicted_objective,
-                           iterations=decision.iterations,
                            latency_ms=1e3 * (time.perf_counter() - started),
                            measure=not decision.travel)
 
@@ -147,13 +134,9 @@ class HoldMode(Mode):
 
 
 class DLMPCController(Supervisor):
-    """The DL-MPC's default strategy: acquire, track (and plan), hold.
-
-    ``target_objective``: the mean O of the map's training targets (the lock threshold is
-    ``acquisition.lock_fraction`` x it); ``curve``: the tracking curve ``(grid (n,), angles
-    (n, 4), steady O (n,))``; ``response``: the steady-response predictor (None: no planner);
-    ``rotation_prior`` and ``turn_correction``: what a calibration bag taught
-    (:mod:`dlmpc_ros.training.adapt`)."""
+    """The default strategy: acquire, track (and plan), hold. Locked at ``lock_fraction`` x
+    ``target_objective``; ``curve``: ``(grid (n,), angles (n, 4), steady O (n,))``; ``response``:
+    the predictor (None: no planner); ``rotation_prior``, ``turn_correction``: a calibration's."""
 
     def __init__(self, config: DLMPCConfig, target_objective: float,
                  curve: tuple[np.ndarray, np.ndarray, np.ndarray],
@@ -215,48 +198,34 @@ WEAK_FIELD = 0.25
 class ScanPoint:
     """A candidate angle set of the scan."""
 
-    angles: np.ndarray = field(repr=False)
-    """(4,) angles [rad]."""
-    branch: int = 0
-    """The tracking curve's branch it lies on (1: the curve, -1: its twin; 0: none)."""
-    estimate: float = float('nan')
-    """Its curve parameter on the tracker's estimate axis (K units; NaN: none)."""
+    angles: np.ndarray = field(repr=False)  # (4,) [rad]
+    branch: int = 0  # the curve's branch it lies on (1: the curve, -1: its twin; 0: none)
+    estimate: float = float('nan')  # its parameter on the tracker's estimate axis (K units)
 
 
 class ScanSource(Protocol):
-    """Where the scan goes."""
+    """Where the scan goes: the points of a new pass, in order, from the ``current`` angles
+    (4,) [rad]; told of each locked period with the estimator's surrogate (NaN: none)."""
 
-    def pass_order(self, current: np.ndarray) -> list[ScanPoint]:
-        """The points of a new pass, in order, from the angles (4,) [rad] ``current``."""
+    def pass_order(self, current: np.ndarray) -> list[ScanPoint]: ...
 
-    def note_locked(self, surrogate: float) -> None:
-        """A locked period, with the estimator's surrogate for it (NaN: none)."""
+    def note_locked(self, surrogate: float) -> None: ...
 
 
 class LockSupervisor:
-    """Per period: None while the DL-MPC loops are in charge, else the scan's angles (4,) [rad].
-
-    Off a pulse the measurement says little about K. After ``patience`` unlocked periods
-    (``relock_patience`` once locked, :meth:`locked`) it scans the points of a
-    :class:`ScanSource` until O locks, then hands back to the modes, told where
-    (:attr:`locked_at`: the scan's point in the period O locked, else None). Where a point's
-    field has died, it seeds it: it turns the half-wave plate on through its period at the
-    servos' speed; a strong CW field builds on the way and forms a pulse back at the point's
-    setting (an NPR laser started by hand; ``bench/results/scan_sweep.md``).
-
-    ``threshold``: O (E/M units) at and above which the laser is locked; ``limits``: the
-    servos' :class:`AngleLimits` (None: no ``TURN_ROOM`` kept)."""
+    """Per period: None while the laser is locked (:meth:`locked`), else after ``patience``
+    unlocked periods (``relock_patience`` once locked) the angles (4,) [rad] of a scan over a
+    :class:`ScanSource`'s points (:attr:`locked_at`: where it locked). Where a point's field
+    died it turns the half-wave plate on through its period: a CW field builds and forms a
+    pulse at the point's setting (as by hand). ``limits`` None: no ``TURN_ROOM`` kept."""
 
     def __init__(self, threshold: float, source: ScanSource,
                  config: AcquisitionConfig | None = None,
                  limits: AngleLimits | None = None) -> None:
         if not threshold > 0:
             raise ValueError(f'lock threshold must be > 0, got {threshold}')
-        self.config = config or AcquisitionConfig()
-        self.threshold = float(threshold)
-        self.source = source
-        self.limits = limits
-        self.unlocked = 0
+        self.config, self.threshold = config or AcquisitionConfig(), float(threshold)
+        self.source, self.limits, self.unlocked = source, limits, 0
         self.was_locked = False  # whether the laser has been locked in this run
         self.level = 0.0  # the laser's recent best O (a decaying maximum)
         self._latest: deque[float] = deque(maxlen=LEVEL_WINDOW)  # finite O
@@ -271,28 +240,22 @@ class LockSupervisor:
         self.travelling = False
 
     def locked(self, objective: float) -> bool:
-        """Whether O = E/M is at the lock threshold and at ``RELOCK_FRACTION`` of the level
-        (the laser's own recent best, decaying by ``LEVEL_DECAY`` per period)."""
+        """Whether O is at the lock threshold and at ``RELOCK_FRACTION`` of the recent best."""
         threshold = max(self.threshold, RELOCK_FRACTION * self.level)
         return bool(np.isfinite(objective) and objective >= threshold)
 
     def step(self, objective: float, current: np.ndarray, surrogate: float,
              energy: float = float('nan')) -> np.ndarray | None:
-        """Measured O, the angles (4,) [rad], the surrogate and the measured E (NaN: none)
-        -> the scan's angles for the next period, or None."""
-        self.locked_at = None
-        self.travelling = False
+        """Measured O, angles (4,) [rad], surrogate and E -> the scan's next angles, or None."""
+        self.locked_at, self.travelling = None, False
         if np.isfinite(objective):
             self._latest.append(float(objective))
             self.level = max(float(np.median(self._latest)), self.level * LEVEL_DECAY)
-        locked = self.locked(objective)
-        if locked:
+        if self.locked(objective):
             if np.isfinite(energy):
                 self.pulse_energy = float(energy)
-            self.was_locked = True
             self.source.note_locked(surrogate)
-            self.locked_at = self._target
-            self.unlocked = 0
+            self.was_locked, self.locked_at, self.unlocked = True, self._target, 0
             self._order, self._target = [], None
             return None
         self.unlocked += 1

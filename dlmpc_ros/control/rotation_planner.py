@@ -1,13 +1,10 @@
 """The DL-MPC's model-predictive step on the laser in front of it: the curve's learned rotation.
 
-Off the nominal cavity the best angles move mostly together: turning all four by one angle
-theta recovers most of the gap. :class:`CurveRotation` is theta(u) along the curve (the twin
-at estimate ``s`` is the curve at ``u = -s`` turned a quarter turn: one rotation serves both
-branches). The :class:`RotationPlanner` asks the steady-response predictor
-(:mod:`dlmpc_ros.learning.response`) what turns ``delta`` at the current point do to the
-settled O and takes the best (predicted gain less ``spread_penalty`` x the ensemble's
-spread) if it beats ``MIN_GAIN`` and the noise; an :class:`OnlineCorrection` learns the
-predictor's errors on this laser; a move after which O fell under ``UNDO_BELOW`` is undone.
+Off the nominal cavity, turning all four angles by one angle theta recovers most of the gap to
+the best angles. :class:`CurveRotation` is theta(u) along the curve (one rotation serves both
+branches: the twin at ``s`` is the curve at ``u = -s``). The :class:`RotationPlanner` takes the
+turn the steady-response predictor (:mod:`dlmpc_ros.learning.response`) scores best, corrected
+online for this laser (:class:`OnlineCorrection`), and undoes a move after which O fell.
 """
 from __future__ import annotations
 
@@ -36,13 +33,9 @@ UNDO_BELOW = 0.85
 
 
 class OnlineCorrection:
-    """What the predictor got wrong on this laser: ``a + b * delta + c * |delta|`` (ridge
-    least squares, ``bench/results/planner_turn_ridge.md``) fit to the errors of the last
-    ``memory`` moves, added to later plans less its value at 0 (``a`` absorbs K's drift).
-    ``b``: which way to turn; ``c``: whether turning pays at all.
-
-    ``prior`` (3,): a calibration's ``a, b, c``, where the fit starts and what the ridge
-    pulls it toward with weight ``ridge`` (None: 0)."""
+    """What the predictor got wrong on this laser: ``a + b * delta + c * |delta|``, a ridge fit
+    to the errors of the last ``memory`` moves toward ``prior`` (3,) (None: 0) with weight
+    ``ridge``, added to later plans less its value at 0 (``a`` absorbs K's drift)."""
 
     def __init__(self, memory: int, ridge: float = 1.0, prior: np.ndarray | None = None) -> None:
         self.moves: deque[tuple[float, float]] = deque(maxlen=memory)  # (delta, error)
@@ -77,14 +70,12 @@ class RotationPlanner:
 
     def __init__(self, model: ResponseEnsemble, config: PlannerConfig | None = None,
                  correction_prior: np.ndarray | None = None) -> None:
-        self.model = model
-        self.config = config or PlannerConfig()
-        self.recent: deque[tuple[float, float]] = deque(maxlen=MEASUREMENTS)
+        self.model, self.config = model, config or PlannerConfig()
+        self.recent: deque[tuple[float, float]] = deque(maxlen=MEASUREMENTS)  # (log E, log M)
         calibrated = correction_prior is not None
         self.correction = OnlineCorrection(MEMORY, ridge=PRIOR_MOVES if calibrated else 1.0,
                                            prior=correction_prior)
-        self.moves = 0
-        self.undone = 0
+        self.moves, self.undone = 0, 0
         self._rng = np.random.default_rng(0)
         self._pending: tuple[float, float, float] | None = None  # (delta, predicted, log O)
 
@@ -94,8 +85,7 @@ class RotationPlanner:
             self.recent.append((float(np.log(energy)), float(np.log(kurtosis))))
 
     def retract(self) -> float:
-        """The last move [rad] if not judged yet (0: none), forgotten and counted as undone
-        (the caller takes it back: the pulse was lost or under its guard)."""
+        """The last move [rad] if not judged yet (0: none), forgotten and counted as undone."""
         if self._pending is None:
             return 0.0
         delta, self._pending = self._pending[0], None
@@ -104,9 +94,8 @@ class RotationPlanner:
         return delta
 
     def plan(self, u: float, theta: float, noise: float = 0.0, at_least: float = 0.0) -> float:
-        """The turn [rad] to add at curve point ``u`` (0: hold); ``theta`` [rad]: the rotation
-        there; ``noise``: the standard deviation of one period's log O (0: unknown);
-        ``at_least``: the smallest predicted gain of log O over holding worth the turn."""
+        """The turn [rad] to add at ``u`` (0: hold), rotated ``theta`` [rad]; ``noise``: a
+        period's log O sigma (0: unknown); ``at_least``: least predicted gain worth it."""
         if not self.recent:
             return 0.0
         log_e, log_m = np.mean(np.array(self.recent), axis=0)
@@ -141,22 +130,17 @@ class RotationPlanner:
 
 
 class CurveRotation:
-    """theta(u) [rad]: a learned turn of all four angles along the curve.
-
-    ``low`` < ``high`` bound the curve parameter (K units), ``knots`` >= 2 points carry
-    the values, ``limit`` [rad] bounds |theta|, ``spread`` (0: off) is :meth:`move`'s prior."""
+    """theta(u) [rad], a learned turn of all four angles along the curve: ``knots`` >= 2
+    points over ``low`` < ``high`` (K units) carry it, within +-``limit`` (see :meth:`move`)."""
 
     def __init__(self, low: float, high: float, knots: int, limit: float,
                  spread: float = 0.0) -> None:
         if not (np.isfinite([low, high]).all() and low < high and knots >= 2 and limit > 0
                 and spread >= 0):
             raise ValueError('need finite low < high, knots >= 2, limit > 0 and spread >= 0')
-        self.spread = float(spread)
-        self.knots = np.linspace(low, high, knots)
-        self.values = np.zeros(knots)
-        #: knots a move was planned next to (their own evidence)
-        self.explored = np.zeros(knots, bool)
-        self.limit = float(limit)
+        self.spread, self.limit = float(spread), float(limit)
+        self.knots, self.values = np.linspace(low, high, knots), np.zeros(knots)
+        self.explored = np.zeros(knots, bool)  # knots a move was planned next to
         self._start = self.values.copy()  # what :meth:`forget` returns to
 
     def start_from(self, knots: np.ndarray, values: np.ndarray) -> None:
@@ -174,9 +158,8 @@ class CurveRotation:
         return float(np.interp(u, self.knots, self.values))
 
     def move(self, u: float, delta: float) -> None:
-        """Change theta(u) by ``delta`` [rad] through the two knots around ``u``, within
-        +-limit. With ``spread`` > 0 every unexplored knot first moves by ``delta`` x
-        exp(-(knot - u)^2 / (2 spread^2)), and the two knots by what theta(u) still lacks."""
+        """Change theta(u) by ``delta`` [rad]: unexplored knots first by ``delta`` x
+        exp(-(knot - u)^2 / (2 spread^2)), then the two around ``u`` by what is lacking."""
         u = float(np.clip(u, self.knots[0], self.knots[-1]))
         right = int(np.clip(np.searchsorted(self.knots, u), 1, self.knots.size - 1))
         w_right = (u - self.knots[right - 1]) / (self.knots[right] - self.knots[right - 1])

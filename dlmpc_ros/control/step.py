@@ -1,7 +1,6 @@
-"""One control period as every controller sees it: the measurement it gets
-(:class:`PeriodMeasurement`), the servo limits its command obeys (:class:`AngleLimits`), the
-step it returns (:class:`ControlStep`, the :class:`Controller` protocol); and what the DL-MPC's
-modes (:mod:`~dlmpc_ros.control.dlmpc`) take and return in one (:class:`Period`,
+"""One control period as every controller sees it: its measurement (:class:`PeriodMeasurement`),
+the servo limits (:class:`AngleLimits`), the step it returns (:class:`ControlStep`,
+:class:`Controller`); and what the DL-MPC's modes take and return (:class:`Period`,
 :class:`Decision`, :class:`Mode`).
 """
 
@@ -28,8 +27,7 @@ MODES = ('inner', 'outer', 'hold', 'passive', 'fixed_best', 'esc', 'oracle', 'ac
 
 @dataclass(frozen=True)
 class ControlStep:
-    """One control period's decision: ``angles`` (4,) [rad], applied from the next round
-    trip on, and diagnostics published on the controller's status topic."""
+    """A period's decision: ``angles`` (4,) [rad] from the next round trip on, and diagnostics."""
 
     angles: np.ndarray
     mode: str
@@ -38,9 +36,7 @@ class ControlStep:
     predicted_objective: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (N,)
     iterations: int = 0
     latency_ms: float = 0.0
-    measure: bool = True
-    """Whether the next decision needs a measurement at ``angles`` (False: it only moves
-    the servos on, and decides again as soon as they report the command reached)."""
+    measure: bool = True  # False: the angles only move the servos on (decide once reached)
 
     @property
     def mode_index(self) -> int:
@@ -65,9 +61,8 @@ def implausible(measurement: np.ndarray) -> bool:
 
 
 class Controller(Protocol):
-    """Measurement ``(E, M, alpha1..alpha_p)`` and the estimator's K surrogate for it (None:
-    none, or the controller's ``uses_estimator`` is false) in, next angles out; the true K
-    comes only by the oracle's ``observe_truth``."""
+    """Measurement ``(E, M, alpha[4])`` and the estimator's K surrogate (None: none, or not
+    ``uses_estimator``) in, next angles out; only the oracle gets K (``observe_truth``)."""
 
     name: str
 
@@ -115,10 +110,8 @@ class Mode:
 
 @dataclass(frozen=True)
 class AngleLimits:
-    """Range of every angle [rad] and the largest change per control period [rad].
-
-    Angles are pi-periodic: a wanted angle becomes its equivalent in ``[low, high]`` (which
-    should span >= pi) nearest the current one, reached by at most ``max_step`` per period."""
+    """Servo range and speed: a wanted angle (pi-periodic) becomes its equivalent in ``[low,
+    high]`` nearest the current one, reached by at most ``max_step`` per period."""
 
     low: float = -2 * math.pi
     """Lowest angle a servo may be sent to [rad] (two turns: room for branch turns)."""
@@ -169,16 +162,12 @@ def period_measurement(states: np.ndarray) -> np.ndarray:
 
 
 class PeriodMeasurement:
-    """Collects the round trips' states and says when a decision is due, with its measurement.
-
-    A decision falls at most once per ``period`` P round trips, on states *settled* at its
-    command (every angle within ``tolerance`` >= 0 [rad]): the mean E and M of the settled
-    states among the latest ``round_trips`` n >= 1 (an unreported one leaves a gap), with
-    their median angles (n: ``bench/results/measurement_round_trips.md``). It is due once they
-    have been settled for min(n, P) round trips (1 after ``measure=False``), or after
-    ``timeout`` >= 1 round trips regardless (:attr:`settled` says which). Without a known
-    command (before the first, after ``command(None)``) the latest state's angles count as
-    reached."""
+    """Collects the round trips' states and says when a decision is due, with its measurement:
+    at most once per ``period`` P round trips, the mean E and M (median angles) of the states
+    *settled* at the command (every angle within ``tolerance`` [rad]) among the latest
+    ``round_trips`` n, once they have been settled for min(n, P) round trips (1 after
+    ``measure=False``), or after ``timeout`` round trips regardless (:attr:`settled` says
+    which). Without a known command the latest state's angles count as reached."""
 
     def __init__(self, period: int, round_trips: int = MEASUREMENT_ROUND_TRIPS,
                  tolerance: float = SETTLE_TOLERANCE, timeout: int = SETTLE_TIMEOUT) -> None:
@@ -201,14 +190,8 @@ class PeriodMeasurement:
         #: that command moved the servos and was reached; else None.
         self.settle_round_trips: int | None = None
 
-    @property
-    def last_decision(self) -> int:
-        """Round trip of the latest decision (0 before the first)."""
-        return self._last
-
     def wanted(self, round_trip: int) -> bool:
-        """Whether round trip r's state can matter: for the next measurement, the servos'
-        settle time, or as the start of a new run."""
+        """Whether round trip r's state can matter (the measurement, settle time, a new run)."""
         return (self._awaiting or (self._moved and self._first_settled is None)
                 or round_trip > self._last + self.period - self.round_trips
                 or round_trip < self._last)  # a new run
@@ -217,14 +200,11 @@ class PeriodMeasurement:
         return bool(np.abs(state[2:] - reference).max() <= self.tolerance)
 
     def command(self, angles: np.ndarray | None, measure: bool = True) -> None:
-        """The command (4,) [rad] of the latest decision (None: unknown; the latest state's
-        angles are the reference); no decision is due before it. ``measure=False``: the
-        next comes once it is reached (>= P later), on however few settled states."""
-        self._awaiting = False
-        self._measure = bool(measure)
+        """The latest decision's command (4,) [rad] (None: unknown); none is due till then.
+        ``measure=False``: the next comes once it is reached, on however few states."""
+        self._awaiting, self._measure = False, bool(measure)
         self._command = None if angles is None else np.array(angles, float)
-        latest = self._latest[-1][1][2:] if self._latest else None
-        self._moved = (self._command is not None and latest is not None
+        self._moved = (self._command is not None and bool(self._latest)
                        and not self._at_command(self._latest[-1][1], self._command))
         since = [(r, self._settled(s)) for r, s in self._latest if r > self._last]
         self._first_settled = next((r for r, settled in since if settled), None)
@@ -235,9 +215,8 @@ class PeriodMeasurement:
         return self._at_command(state, reference)
 
     def _settled_since(self) -> int | None:
-        """Round trip since which the readings are at the reference (None: not at it): with a
-        command, the one after the latest state away from it (unreported ones count as
-        settled); without, the start of the trailing run at the latest state's angles."""
+        """Round trip since which the states are at the command (None: not at it), or without
+        one, at the latest state's angles (unreported round trips count as settled)."""
         if self._command is not None:
             return self._last_away + 1 if self._settled(self._latest[-1][1]) else None
         since = None
@@ -248,9 +227,8 @@ class PeriodMeasurement:
         return since
 
     def add(self, round_trip: int, state: np.ndarray) -> np.ndarray | None:
-        """Add round trip r's state (6,) ``(E, M, alpha[4])``; return the measurement (6,)
-        when a decision is due, else None. An earlier round trip than the latest starts a
-        new run (no command known); the latest one again replaces its state."""
+        """Round trip r's state (6,) ``(E, M, alpha[4])`` -> the measurement (6,) when a
+        decision is due, else None (an earlier round trip than the latest: a new run)."""
         if self._latest and round_trip == self._latest[-1][0]:
             self._latest.pop()  # the same round trip again: its latest state counts
         elif self._latest and round_trip < self._latest[-1][0]:

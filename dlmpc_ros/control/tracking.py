@@ -1,16 +1,10 @@
-"""Curve tracking for the DL-MPC: hold the laser on the best branch and follow K along it.
+"""Curve tracking for the DL-MPC: hold the laser on the better branch and follow K along it.
 
-Along the learned angle curve ``c(s)`` (``s`` a birefringence estimate in K's units) the
-steady O peaks near ``s = K``; the tracker estimates ``s`` by dithering it (:class:`Dither`).
-It enters after ``entry_patience`` locked periods (at ``start``) or where the scan locked;
-an entry that fails its guard hands back for a cooldown (doubled after each failure).
-
-The curve is best for K < 0, its twin ``c(-s) + pi/2`` (:mod:`dlmpc_ros.core.symmetry`) for
-K > 0. The tracker turns to the other branch (:class:`BranchTurn`: a quarter turn of all four
-angles that keeps the pulse) when its estimate passes 0 by ``mirror_margin`` or O falls
-``trial_drop`` under its best on the branch, and keeps the turn if it gains, or if its planner
-expects a turn of the curve to make up the rest (:mod:`~dlmpc_ros.control.rotation_planner`),
-as it may turn the curve every ``PLAN_EVERY`` blocks.
+Along the learned curve ``c(s)`` (``s`` in K units) the steady O peaks near ``s = K``: the
+:class:`CurveTracker` estimates ``s`` by dithering it (:class:`Dither`), turns to the twin
+``c(-s) + pi/2`` (better for K > 0, :mod:`dlmpc_ros.core.symmetry`) by a quarter turn that
+keeps the pulse (:class:`BranchTurn`), and turns the curve where its planner expects more O
+(:mod:`~dlmpc_ros.control.rotation_planner`).
 """
 
 from __future__ import annotations
@@ -36,16 +30,14 @@ PLAN_EVERY = 4
 ROTATION_KNOTS = 13
 #: Largest learned rotation [rad].
 ROTATION_LIMIT = 1.0
-#: A turn at one point also turns the knots not yet turned by turn x
-#: exp(-(distance / ROTATION_SPREAD)^2 / 2) (K units; ``bench/results/rotation_spread.md``).
+#: Width (K units) of the Gaussian share of a turn unturned knots take (``rotation_spread.md``).
 ROTATION_SPREAD = 0.1
 #: How far past its ends (K units) the tracker follows the curve, along straight lines fitted
 #: to the curve's last REACH at each end (its best point often lies past an end).
 REACH = 0.1
 #: Relative O difference below which the estimate does not move.
 DEADBAND = 5e-5
-#: Periods to wait after handing back before trying again (doubled, up to 64 x, after each
-#: failed entry).
+#: Periods to wait after handing back before trying again (doubled after each failed entry).
 COOLDOWN = 50
 #: A branch turn is judged against the median O of this many latest periods (a pulse just
 #: formed swings by a factor of two; ``bench/results/entry_turn.md``), or the latest if lower.
@@ -56,8 +48,7 @@ TRIAL_BLOCKS = 2
 
 
 class TrackerState(Enum):
-    """What the tracker does in a period (:attr:`CurveTracker.state`); its transitions:
-    :data:`TRACKER_TRANSITIONS`, each with its cause in docs/architecture.md."""
+    """What the tracker does; transitions: :data:`TRACKER_TRANSITIONS` (docs/architecture.md)."""
 
     IDLE = 'idle'      # not tracking: waiting for a lock and the cooldown
     DITHER = 'dither'  # on the curve, dithering the estimate (and planning turns)
@@ -72,13 +63,11 @@ TRACKER_TRANSITIONS = frozenset({
 
 
 class CurveTracker:
-    """Per control period: None while not tracking (the controller holds the angles), else
-    the angles (4,) [rad] on the curve.
-
-    ``grid`` (n,) increasing curve parameters, ``angles`` (n, 4) [rad] the curve, continuous
-    along it; ``threshold`` the O at which the laser counts as locked; ``expected`` (n,)
-    the curve's steady O (None: the entry trial always runs); ``limits`` the servo limits
-    a branch turn stays inside; ``planner`` turns the curve (None: never)."""
+    """Per control period: None while not tracking (the angles hold), else the angles (4,)
+    [rad] on the curve. It enters after ``entry_patience`` periods locked (O >= ``threshold``)
+    or where the scan locked; an entry under its guard hands back for a cooldown. ``grid`` (n,),
+    ``angles`` (n, 4) [rad]: the curve; ``expected`` (n,): its steady O (None: the entry trial
+    always runs); ``limits``: the servos'; ``planner`` turns the curve (None: never)."""
 
     def __init__(self, grid: np.ndarray, angles: np.ndarray, threshold: float,
                  config: TrackingConfig | None = None, expected: np.ndarray | None = None,
@@ -119,15 +108,13 @@ class CurveTracker:
         return TrackerState.TURN if self.turner.busy else TrackerState.DITHER
 
     def curve(self, s: float) -> np.ndarray:
-        """The angles (4,) [rad] at parameter ``s`` (within ``REACH`` of the grid) on the tracker's
-        branch: the curve, or its twin ``c(-s) + pi/2``, turned by the learned rotation."""
+        """The angles (4,) [rad] at ``s`` on the tracker's branch (twin: ``c(-s) + pi/2``)."""
         on_curve = self.on_curve(self.branch * s)
         on_curve[HALF_WAVE] += self._half_wave_frame
         return on_curve if self.branch == 1 else on_curve + QUARTER_TURN
 
     def on_curve(self, u: float) -> np.ndarray:
-        """The curve's angles (4,) [rad] at ``u`` (within ``REACH`` of the grid; past its ends on
-        their fitted lines), turned by the rotation learned there."""
+        """The curve's angles (4,) [rad] at ``u`` (past its ends: fitted lines), turned."""
         u = float(np.clip(u, self.low, self.high))
         inside = float(np.clip(u, self.grid[0], self.grid[-1]))
         return np.array([np.interp(inside, self.grid, self.angles[:, j]) for j in range(4)]) \
@@ -136,10 +123,9 @@ class CurveTracker:
     def enter_at(self, estimate: float, branch: int, objective: float,
                  current: np.ndarray | None = None) -> None:
         """Start tracking at ``estimate`` on ``branch`` where the scan just locked (O =
-        ``objective``, servos at ``current`` (4,) [rad]): no entry patience, cooldown or wait
-        after an earlier turn. A scan may lock with the half-wave plate a quarter turn from the
-        curve's (the same setting, :data:`HALF_WAVE`): the tracker keeps that frame rather
-        than turn the plate back through its period."""
+        ``objective``, servos at ``current`` (4,) [rad]), with no patience, cooldown or wait;
+        if the scan locked with the half-wave plate a quarter turn from the curve's (the same
+        setting), in that frame."""
         if branch not in (1, -1):
             raise ValueError(f'branch must be 1 or -1, got {branch}')
         self.active, self._wait, self.branch = True, 0, branch
@@ -165,8 +151,7 @@ class CurveTracker:
         self._recent.clear()
 
     def step(self, objective: float, current: np.ndarray | None = None) -> np.ndarray | None:
-        """This period's measured O and the angles (4,) [rad] it ran with -> the curve's
-        angles for the next period, or None. Without ``current`` the branch never changes."""
+        """This period's O and angles (4,) [rad] (None: no turns) -> the next angles, or None."""
         locked = bool(np.isfinite(objective) and objective >= self.threshold)
         self._latest.append(float(objective) if np.isfinite(objective) else 0.0)
         self.planned = 0.0  # the planner's turn this period [rad]
@@ -209,18 +194,15 @@ class CurveTracker:
         return self.curve(self.estimate + self.dither.sign * self.config.dither)
 
     def _begin_turn(self, current: np.ndarray, reference: float | None = None) -> bool:
-        """Begin a turn at the estimate from the angles ``current`` (4,) [rad] (or not: False),
-        judged against ``reference`` (default: the median O of the latest periods)."""
+        """Begin a turn from ``current`` (4,) [rad] against ``reference`` (None: median O)."""
         self._turn_side, self._before_turn = np.sign(self.estimate), (self.branch, self.estimate)
         reference = float(np.median(self._latest)) if reference is None else reference
         return self.turner.begin(current, self.branch * self.estimate, reference)
 
     def _branch_trial(self) -> float | None:
-        """The O to judge a try of the other branch against, or None (no try now). The estimate
-        went ``mirror_margin`` past K = 0: the median O of the latest periods; the mean O of
-        the last ``TRIAL_BLOCKS`` blocks fell ``trial_drop`` under its best on the branch: the
-        O it fell to, if lower (``bench/results/fell_reference.md``). The wait after a turn
-        holds both back but a crossing of 0 since a turn that kept the pulse began."""
+        """The O to judge a try of the other branch against (None: no try): past K = 0 by
+        ``mirror_margin``, the recent median O; O fell ``trial_drop`` under its best on the
+        branch, the O it fell to if lower. Not in a turn's wait, but for a crossing of 0."""
         cfg = self.config
         past_zero = self.branch * self.estimate > cfg.mirror_margin
         if self.turner.wait > 0 and not (past_zero and np.sign(self.estimate) == -self._turn_side):
@@ -281,8 +263,7 @@ class CurveTracker:
         self.dither.restart()
 
     def _forget_unjudged_turn(self) -> None:
-        """Take back the planner's latest turn, not judged yet (the laser lost what it had),
-        from the curve's memory too, lest it stay where K will come by again."""
+        """Take back the planner's latest, unjudged turn, from theta too."""
         turn = self.planner.retract() if self.planner is not None else 0.0
         if turn:
             self.rotation.move(self._turn_at, -turn)
@@ -297,8 +278,7 @@ class CurveTracker:
 
     def _end_block(self, objective: float, move: float) -> None:
         """A dither block closed with O = ``objective``: record it for the branch trial, move
-        the estimate by ``move``; every ``PLAN_EVERY`` blocks, turn the curve at the
-        estimate's point by the planner's turn."""
+        the estimate by ``move``; every ``PLAN_EVERY`` blocks, let the planner turn the curve."""
         cfg = self.config
         if cfg.trial_drop > 0 and np.isfinite(objective):
             self._trial_values.append(objective)
@@ -311,8 +291,7 @@ class CurveTracker:
             self._turn_curve()
 
     def _turn_curve(self, at_least: float = 0.0) -> bool:
-        """Turn the curve at the estimate's point by the planner's turn, if it expects a gain of
-        log O of ``at_least`` or more over holding; whether it turned."""
+        """Turn the curve if the planner expects ``at_least`` more log O; whether it did."""
         if self.planner is None:
             return False
         u = float(np.clip(self.branch * self.estimate, self.grid[0], self.grid[-1]))  # on the grid
@@ -328,9 +307,9 @@ class CurveTracker:
 
 class Dither:
     """Where the laser sits on the curve, read off the measured O: the tracker commands the
-    estimate plus ``sign x dither``, the sign flipping every ``block`` periods; a closed
-    block's O is compared with the mean of its neighbours (which cancels a linear drift of
-    O), and the estimate moves toward the higher O by an Rprop step, unless under the deadband."""
+    estimate plus ``sign x dither``, the sign flipping every ``block`` periods; the estimate
+    moves by an Rprop step toward the higher O of a closed block against the mean of its
+    neighbours (which cancels a linear drift), unless under the deadband."""
 
     def __init__(self, config: TrackingConfig) -> None:
         self.config = config
@@ -376,18 +355,14 @@ class Dither:
         return self._step * way
 
     def deadband(self) -> float:
-        """The relative O difference under which the estimate holds: ``DEADBAND``, or if
-        larger ``noise_deadband`` sigmas of the difference's noise (it weighs three blocks'
-        last periods 1, 1/2, 1/2: 1.5 x a period's variance; ``noise_block.md``)."""
+        """Relative O difference the estimate ignores: ``DEADBAND``, or noise sigmas."""
         cfg = self.config
         if cfg.noise_deadband <= 0 or len(self._jitter) < 8:
             return DEADBAND
         return max(DEADBAND, cfg.noise_deadband * self.noise() * np.sqrt(1.5))
 
     def noise(self) -> float:
-        """The measurement noise read off the run: the standard deviation of one period's
-        log O, from the changes between consecutive periods of a dither block (same
-        angles); 0 until 8 such changes were seen."""
+        """Standard deviation of a period's log O, from changes within blocks (0: < 8 seen)."""
         if len(self._jitter) < 8:
             return 0.0
         # median |difference of two periods| -> one period's standard deviation
@@ -421,40 +396,27 @@ ARRIVED, KEPT, RETURNED, ABANDONED = (TurnEvent.ARRIVED, TurnEvent.KEPT, TurnEve
 FREE_TURN = 0.06
 #: Relative gain of O the new branch must bring to be kept.
 BRANCH_GAIN = 0.005
-#: Turn of all four angles per period while changing branch [rad] (<= the servo speed; 0.1
-#: lost O, 0.25 measured nothing, ``bench/results/turn_step.md``), and the periods a turn takes.
+#: Turn of all four angles per period of a branch turn [rad] (``turn_step.md``), and its periods.
 TURN_STEP = 0.2
 TURN_PERIODS = int(np.ceil(QUARTER_TURN / TURN_STEP - 1e-9))
-#: Periods after a turn turned back or given up (or with no room) before the next may start;
-#: a kept turn leaves none (``bench/results/kept_turn_no_wait.md``).
+#: Periods before the next turn after one turned back, given up or with no room (kept: none).
 TURN_COOLDOWN = 100
 #: Periods on trial after a turn; the median O of their later half decides.
 VERIFY = 6
 
 
 class BranchTurn:
-    """A change of branch under way, and what earlier ones taught.
-
-    It turns all four angles a quarter turn over ``TURN_PERIODS`` periods while the curve
-    parameter runs from ``u`` to ``-|u|``. Under ``turn_guard`` x the O before, it retraces
-    and next time goes the other way round (within ``FREE_TURN`` of K = 0: toward mid-range
-    first); after ``VERIFY`` periods on trial it stays for ``BRANCH_GAIN`` more O, or where
-    ``turn_curve`` (the tracker's planner) turns the curve to make up what is short. Far from
-    K = 0 the one way that keeps the pulse winds the servos to an end: with no room left that
-    way, a turn goes the other and never retraces (the scan centres the servos).
-
-    ``turn_guard``: the tracker's (:class:`~dlmpc_ros.control.dlmpc_config.TrackingConfig`);
-    ``on_curve(u)``: the curve's angles (4,) [rad] at ``u`` (with any learned rotation);
-    ``turn_curve(gain)``: turns the curve where the turn is expected to gain that much log O
-    (whether it did; None: never)."""
+    """A change of branch: all four angles turn a quarter turn in ``TURN_PERIODS`` periods as
+    the curve parameter runs from ``u`` to ``-|u|`` (``on_curve(u)``: angles (4,) [rad]). Under
+    ``turn_guard`` x the O before it retraces (next time the other way round); after ``VERIFY``
+    periods it stays for ``BRANCH_GAIN`` more O, or if ``turn_curve(gain)`` turns the curve to
+    make up the rest. With no room left the way that keeps the pulse, it goes the other: kept."""
 
     def __init__(self, turn_guard: float, limits: AngleLimits,
                  on_curve: Callable[[float], np.ndarray],
                  turn_curve: Callable[[float], bool] | None = None) -> None:
-        self.turn_guard = float(turn_guard)
-        self.limits = limits
-        self.on_curve = on_curve
-        self.turn_curve = turn_curve
+        self.turn_guard, self.limits = float(turn_guard), limits
+        self.on_curve, self.turn_curve = on_curve, turn_curve
         self.direction = -1.0    # the way round that kept the pulse last
         # turns kept; given up because O fell (pulse going); taken back (the other no better)
         self.made = self.abandoned = self.rejected = 0
@@ -482,9 +444,8 @@ class BranchTurn:
         self._phase, self._path = TurnPhase.IDLE, []
 
     def begin(self, current: np.ndarray, u: float, objective: float) -> bool:
-        """Start a turn from ``current`` (4,) [rad] at curve point ``u`` to :attr:`landing`
-        (``-|u|``), ``objective`` the O before it; False (and a cooldown) if no way round fits
-        the limits. Tries first :attr:`direction` (within ``FREE_TURN``: toward mid-range)."""
+        """Start a turn from ``current`` (4,) [rad] at ``u`` to ``-|u|``, from O ``objective``,
+        first :attr:`direction` (near K = 0: toward mid-range); False (a wait) if none fits."""
         start = self.on_curve(u)
         self.landing = -abs(u)
         fractions = (np.arange(TURN_PERIODS) + 1) / TURN_PERIODS
@@ -512,8 +473,7 @@ class BranchTurn:
         self._phase, self._path = phase, self._issued[-2::-1] + [self._from]
 
     def _keep(self) -> tuple[None, TurnEvent]:
-        """The new branch stays, with no wait: its best O starts afresh, so a later fall under
-        it is new evidence (K moved), not the comparison just made."""
+        """The new branch stays, no wait: its best O starts afresh (a fall is new evidence)."""
         self._phase, self.wait = TurnPhase.IDLE, 0
         self.made += 1
         self.lost_landing = False

@@ -1,14 +1,9 @@
 """The DL-MPC's steady-response predictor: what turning the tracking curve does to O.
 
-Which way and how far to turn the curve (:mod:`dlmpc_ros.control.rotation_planner`) shows in
-what the laser measures. The predictor reads, at the curve point ``u`` the tracker is at, the
-rotation ``theta`` it runs with and the measured ``E`` and ``M``, and predicts the change of
-log O a further turn ``delta`` would bring once the laser has settled: the steady response,
-not every period's. It is an ensemble of small networks trained on bootstrap samples; their
-spread says where a plan leaves the data (the planner penalizes it). ``dlmpc-train
-response`` (:mod:`dlmpc_ros.training.stages.response`) trains it on plants drawn from the
-family (domain randomization); it never reads K or a plant's parameters. Its file:
-:mod:`dlmpc_ros.learning.response_file`.
+From the curve point ``u``, its rotation ``theta`` and the measured ``E`` and ``M`` it predicts
+the settled change of log O of a further turn ``delta``: an ensemble of small networks on
+bootstrap samples, whose spread says where a plan leaves the data. Trained on plants drawn
+from the family, never on K (:mod:`dlmpc_ros.training.stages.response`).
 """
 
 from __future__ import annotations
@@ -30,9 +25,8 @@ FEATURES = ('u', 'theta', 'log_E', 'log_M', 'delta')
 
 
 class ResponseEnsemble(nn.Module):
-    """Inputs (..., 5) of :data:`FEATURES` -> predicted change of log O (..., members).
-
-    ``generator`` (optional) draws the initial weights (PyTorch's default scheme)."""
+    """Inputs (..., 5) of :data:`FEATURES` -> predicted change of log O (..., members);
+    ``generator`` (optional) draws the initial weights."""
 
     def __init__(self, config: ResponseModelConfig,
                  generator: torch.Generator | None = None) -> None:

@@ -1,13 +1,11 @@
 """A controller node's control period, from the /laser/state callback to the published command.
 
-Each usable state goes to the period's measurement, which says when a decision is due
-(:class:`~dlmpc_ros.control.step.PeriodMeasurement`). The measurement is published on
-/controller/measurement (what the estimator reads), the controller steps, and the angles go
-out on /laser/angles_cmd, the decision on /controller/status. A controller that reads the
-estimator's surrogate (the paper's loops) acts once the estimate of the same round trip is in
-(:class:`~dlmpc_ros.ros.estimates.EstimateInbox`), or ``estimator_timeout`` s without it; a
-decision is never skipped (the controller's histories assume one row per decision). A
-non-finite command is never sent: the angles hold and the controller starts afresh.
+Each usable state goes to the period's :class:`~dlmpc_ros.control.step.PeriodMeasurement`,
+which says when a decision is due; the measurement goes out on /controller/measurement, the
+controller steps, the angles go out on /laser/angles_cmd, the decision on /controller/status.
+The paper's loops wait for the estimator's surrogate up to ``estimator_timeout`` s, never
+skipping a decision. A non-finite command is never sent: the angles hold, the controller
+starts afresh.
 """
 
 from __future__ import annotations
@@ -37,9 +35,8 @@ RECENT_DECISIONS = 1000
 class DecisionLoop:
     """``controller`` decides within ``limits``, ``periods`` says when and on what,
     ``publishers`` send it; ``now()``: the node's clock [s]; ``inbox``: the estimator's
-    surrogates (None: the controller reads none), awaited ``estimator_timeout`` s;
-    ``before_step(controller, state)`` runs before each step (the oracle reads its K there);
-    ``fresh(controller)``: the controller after a non-finite command (default: the same)."""
+    surrogates (None: none read); ``before_step(controller, state)`` runs before each step
+    (the oracle reads K there); ``fresh(controller)``: the controller after a non-finite one."""
 
     def __init__(self, controller: Controller, limits: AngleLimits, periods: PeriodMeasurement,
                  publishers: Publishers, warn: itf.RateLimitedLog, now: Callable[[], float],
