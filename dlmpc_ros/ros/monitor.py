@@ -34,6 +34,9 @@ from dlmpc_ros.recording.run_csv import DECISION_FIELDS, decisions_path, write_h
 MAX_PENDING = 2000
 #: Decisions wait at most this many for their estimate (it travels on another topic).
 MAX_PENDING_DECISIONS = 16
+#: Longest wait at the end of a lockstep run for the decisions still on their way [s] (a
+#: decision's status and the laser's next states travel on separate topics).
+DECISION_GRACE = 2.0
 
 
 class MonitorNode(Node):
@@ -47,6 +50,7 @@ class MonitorNode(Node):
         self._latest_estimate = -1
         self._decisions: deque[list[float]] = deque()
         self.decisions = 0
+        self.latest_decision = -1  # round trip of the latest status heard
         self.state: list[float] | None = None
         self.k = math.nan
         self.k_seen = False
@@ -77,6 +81,7 @@ class MonitorNode(Node):
         data = list(msg.data[:len(itf.CONTROLLER_STATUS_FIELDS)])
         if len(data) == len(itf.CONTROLLER_STATUS_FIELDS) and math.isfinite(data[0]):
             self._decisions.append(data)
+            self.latest_decision = max(self.latest_decision, int(data[0]))
             self.flush_decisions()
 
     def flush_decisions(self, everything: bool = False) -> None:
@@ -212,6 +217,12 @@ def _spin(args: argparse.Namespace, graph: NodeGraph, requested: threading.Event
             last_count, last_time, last_print = node.count, now, now
             line = status_line(node.state, node.k, rate)
             print('\r' + line if tty else line, end='' if tty else '\n', flush=True)
+    if getattr(args, 'lockstep', False) and getattr(args, 'controller', 'none') != 'none':
+        last = limit - limit % args.period  # the last decision's round trip
+        deadline = time.monotonic() + DECISION_GRACE
+        while node.latest_decision < last and time.monotonic() < deadline \
+                and not requested.is_set():
+            executor.spin_once(timeout_sec=0.05)
     return 0
 
 
