@@ -217,8 +217,8 @@ def _spin(args: argparse.Namespace, graph: NodeGraph, requested: threading.Event
             last_count, last_time, last_print = node.count, now, now
             line = status_line(node.state, node.k, rate)
             print('\r' + line if tty else line, end='' if tty else '\n', flush=True)
-    if getattr(args, 'lockstep', False) and getattr(args, 'controller', 'none') != 'none' \
-            and args.csv is not None:  # (the monitor hears decisions for the CSV only)
+    if args.lockstep and args.controller != 'none' and args.csv is not None:
+        # (the monitor hears decisions for the CSV only)
         last = limit - limit % args.period  # the last decision's round trip
         deadline = time.monotonic() + DECISION_GRACE
         while node.latest_decision < last and time.monotonic() < deadline \
